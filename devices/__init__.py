@@ -1,0 +1,1 @@
+"""twinmesh twins: the pybullet world, device behaviours, robot models and scenes."""

@@ -1,0 +1,1 @@
+"""twinmesh robot TD generation: introspection, kinematics, workspace sampling, hull, checks, calibration."""
