@@ -1,0 +1,38 @@
+"""Opening Zenoh sessions the one way this project does it."""
+from __future__ import annotations
+
+import os
+import threading
+from contextlib import contextmanager
+from typing import Iterator
+
+from mesh.settings import MeshSettings
+
+_log_once = threading.Lock()
+_log_done = False
+
+
+def _init_logging() -> None:
+    global _log_done
+    with _log_once:
+        if not _log_done:
+            import zenoh
+
+            zenoh.init_log_from_env_or(os.environ.get("TWINMESH_ZENOH_LOG", "error"))
+            _log_done = True
+
+
+@contextmanager
+def open_session(settings: MeshSettings) -> Iterator["zenoh.Session"]:  # noqa: F821
+    """`with open_session(s) as session:` — the session closes (and its threads end) on exit."""
+    import zenoh
+
+    _init_logging()
+    with zenoh.open(settings.zenoh_config()) as session:
+        yield session
+
+
+def run_router(settings: MeshSettings, stop: threading.Event) -> None:
+    """Hold a router session open until `stop` is set: the rendezvous of a lab."""
+    with open_session(settings.as_router()):
+        stop.wait()

@@ -1,0 +1,223 @@
+"""The Thing runtime: serve one TD's affordances on Zenoh (the exposing side, like node-wot's ExposedThing).
+
+Given a TD and handlers, `ExposedThing` declares the TD queryable, a queryable per property
+(get = read, get with payload = write), per action and per linked file, publishers for property
+changes and events, and last the liveliness token, so that a Thing is never seen alive before it
+can answer. Zenoh callbacks only hand queries to a worker pool: handlers may block (a motion
+returns when it is over) without stalling the session.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Callable
+
+import msgspec
+
+from mesh.keys import Keys, check_name, check_slug
+from mesh.problem import BadInput, NotAllowed, NotFound, Problem
+from mesh.td import ThingDescription, zenoh_forms
+from mesh.validate import validate
+
+log = logging.getLogger(__name__)
+
+Read = Callable[[], Any]
+Write = Callable[[Any], None]
+Act = Callable[[Any], Any]
+FileSource = Callable[[], bytes]
+
+JSON_ENCODING = "application/json"
+NO_INPUT = None
+
+
+def decode_json(payload: bytes, what: str) -> Any:
+    """JSON from a payload, or BadInput naming what was malformed."""
+    try:
+        return msgspec.json.decode(payload)
+    except msgspec.DecodeError as e:
+        raise BadInput(f"{what} is not valid JSON: {e}") from None
+
+
+class ExposedThing:
+    """One Thing on the mesh. Register handlers, then `expose()`; `destroy()` (or `with`) undeclares."""
+
+    def __init__(self, session, td: ThingDescription, name: str, keys: Keys | None = None,
+                 workers: int = 8):
+        self.session = session
+        self.name = check_slug(name)
+        self.keys = keys or Keys()
+        self.td = td
+        self._reads: dict[str, Read] = {}
+        self._writes: dict[str, Write] = {}
+        self._actions: dict[str, Act] = {}
+        self._files: dict[str, tuple[FileSource, str]] = {}
+        self._values: dict[str, Any] = {}
+        self._lock = threading.Lock()
+        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=f"thing-{name}")
+        self._declared: list[Any] = []
+        self._publishers: dict[str, Any] = {}
+        self._td_json = b""
+        self._exposed = False
+
+    # --- handlers -------------------------------------------------------------------------
+    def on_read(self, prop: str, fn: Read) -> "ExposedThing":
+        self._need("properties", prop)
+        self._reads[prop] = fn
+        return self
+
+    def on_write(self, prop: str, fn: Write) -> "ExposedThing":
+        self._need("properties", prop)
+        self._writes[prop] = fn
+        return self
+
+    def on_action(self, action: str, fn: Act) -> "ExposedThing":
+        self._need("actions", action)
+        self._actions[action] = fn
+        return self
+
+    def on_file(self, name: str, source: FileSource, content_type: str) -> "ExposedThing":
+        self._files[check_name(name)] = (source, content_type)
+        return self
+
+    def state(self, prop: str, initial: Any) -> "ExposedThing":
+        """Back a property by a stored value: reads return it, writes store it and publish the change."""
+        self._need("properties", prop)
+        self._values[prop] = initial
+        self._reads[prop] = lambda: self.value(prop)
+        self._writes[prop] = lambda v: self.set_value(prop, v)
+        return self
+
+    def value(self, prop: str) -> Any:
+        with self._lock:
+            return self._values[prop]
+
+    def set_value(self, prop: str, value: Any) -> bool:
+        """Store a state-backed property; publish it if it changed. Returns whether it changed."""
+        with self._lock:
+            changed = self._values.get(prop, object()) != value
+            self._values[prop] = value
+        if changed:
+            self.emit_property_change(prop, value)
+        return changed
+
+    # --- publications -------------------------------------------------------------------
+    def emit_property_change(self, prop: str, value: Any) -> None:
+        self._publish(self.keys.property(self.name, prop), value)
+
+    def emit_event(self, event: str, data: Any = None) -> None:
+        self._need("events", event)
+        self._publish(self.keys.event(self.name, event), data)
+
+    def update_td(self, td: ThingDescription) -> None:
+        """Replace the TD (e.g. a regenerated robot TD) and tell observers of `<thing>/td`."""
+        self.td = td
+        self._td_json = zenoh_forms(td, self.keys.prefix, self.name).to_json()
+        if self._exposed:
+            self.session.put(self.keys.td(self.name), self._td_json, encoding=JSON_ENCODING)
+
+    def _publish(self, key: str, value: Any) -> None:
+        if not self._exposed:
+            return
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self._publishers[key] = self.session.declare_publisher(key, encoding=JSON_ENCODING)
+        pub.put(msgspec.json.encode(value))
+
+    # --- lifecycle ----------------------------------------------------------------------
+    def expose(self) -> "ExposedThing":
+        missing = [p for p in self.td.properties if p not in self._reads and not self.td.properties[p].writeOnly]
+        missing += [a for a in self.td.actions if a not in self._actions]
+        if missing:
+            raise ValueError(f"{self.name}: no handler for {', '.join(missing)}")
+        self._td_json = zenoh_forms(self.td, self.keys.prefix, self.name).to_json()
+        k, s = self.keys, self.session
+        self._declared.append(s.declare_queryable(k.td(self.name), self._dispatch(self._answer_td)))
+        for p in self.td.properties:
+            self._declared.append(s.declare_queryable(k.property(self.name, p), self._dispatch(self._answer_property, p)))
+        for a in self.td.actions:
+            self._declared.append(s.declare_queryable(k.action(self.name, a), self._dispatch(self._answer_action, a)))
+        for f in self._files:
+            self._declared.append(s.declare_queryable(k.file(self.name, f), self._dispatch(self._answer_file, f)))
+        self._exposed = True
+        self._declared.append(s.liveliness().declare_token(k.alive(self.name)))
+        return self
+
+    def destroy(self) -> None:
+        self._exposed = False
+        for d in reversed(self._declared):
+            try:
+                d.undeclare()
+            except Exception:  # the session may already be closing
+                pass
+        self._declared.clear()
+        for pub in self._publishers.values():
+            try:
+                pub.undeclare()
+            except Exception:
+                pass
+        self._publishers.clear()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def __enter__(self) -> "ExposedThing":
+        return self.expose()
+
+    def __exit__(self, *exc) -> None:
+        self.destroy()
+
+    # --- query handling (worker threads) ----------------------------------------------------
+    def _dispatch(self, answer: Callable[..., bytes | None], *args: Any):
+        def callback(query) -> None:  # runs on a Zenoh thread: never block here
+            self._pool.submit(self._serve, query, answer, args)
+        return callback
+
+    def _serve(self, query, answer, args) -> None:
+        try:
+            payload = query.payload.to_bytes() if query.payload is not None else None
+            out = answer(payload, *args)
+            out, encoding = out if isinstance(out, tuple) else (out, JSON_ENCODING)
+            query.reply(query.key_expr, out if out is not None else b"", encoding=encoding)
+        except Problem as p:
+            query.reply_err(p.to_json(), encoding="application/problem+json")
+        except Exception as e:  # a device bug must still answer, not time out
+            log.exception("%s: handler failed", self.name)
+            query.reply_err(Problem(f"{type(e).__name__}: {e}").to_json(), encoding="application/problem+json")
+        finally:
+            query.drop()
+
+    def _answer_td(self, payload: bytes | None) -> bytes:
+        return self._td_json
+
+    def _answer_property(self, payload: bytes | None, prop: str) -> bytes | None:
+        aff = self.td.properties[prop]
+        if payload is None:
+            if aff.writeOnly or prop not in self._reads:
+                raise NotAllowed(f"property {prop!r} of {self.name} is not readable")
+            return msgspec.json.encode(self._reads[prop]())
+        if aff.readOnly or prop not in self._writes:
+            raise NotAllowed(f"property {prop!r} of {self.name} is read-only")
+        value = decode_json(payload, f"the value for {prop!r}")
+        validate(value, aff, path=prop)
+        self._writes[prop](value)
+        return None
+
+    def _answer_action(self, payload: bytes | None, action: str) -> bytes | None:
+        aff = self.td.actions[action]
+        value = None
+        if aff.input is not None:
+            if not payload:
+                raise BadInput(f"action {action!r} needs an input")
+            value = decode_json(payload, f"the input of {action!r}")
+            validate(value, aff.input, path="input")
+        out = self._actions[action](value)
+        return None if out is None else msgspec.json.encode(out)
+
+    def _answer_file(self, payload: bytes | None, name: str) -> tuple[bytes, str]:
+        source, content_type = self._files.get(name, (None, ""))
+        if source is None:
+            raise NotFound(f"{self.name} has no file {name!r}")
+        return source(), content_type
+
+    def _need(self, kind: str, name: str) -> None:
+        if name not in getattr(self.td, kind):
+            raise ValueError(f"{self.name}: the TD has no {kind[:-1] if kind != 'properties' else 'property'} {name!r}")

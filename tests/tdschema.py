@@ -1,0 +1,38 @@
+"""Validate Thing Descriptions against the official TD 1.1 JSON schema, with format checks on.
+
+The schema alone is loose (NOTES.md): it does not check that security names exist in
+securityDefinitions, so that is checked here too.
+"""
+from __future__ import annotations
+
+import json
+from functools import lru_cache
+from pathlib import Path
+
+import jsonschema
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+TD_SCHEMA = SHARED / "wot" / "td-1.1-json-schema-validation.json"
+REFERENCE_TDS = SHARED / "reference-tds"
+
+
+@lru_cache(maxsize=1)
+def _validator() -> jsonschema.protocols.Validator:
+    schema = json.loads(TD_SCHEMA.read_text())
+    cls = jsonschema.validators.validator_for(schema)
+    return cls(schema, format_checker=cls.FORMAT_CHECKER)
+
+
+def td_errors(td: dict) -> list[str]:
+    """All problems of a TD: schema violations (formats included) and dangling security names."""
+    errors = [f"{'/'.join(map(str, e.absolute_path))}: {e.message}" for e in _validator().iter_errors(td)]
+    security = td.get("security", [])
+    for name in [security] if isinstance(security, str) else security:
+        if name not in td.get("securityDefinitions", {}):
+            errors.append(f"security: {name!r} is not in securityDefinitions")
+    return errors
+
+
+def assert_valid_td(td: dict) -> None:
+    errors = td_errors(td)
+    assert not errors, "TD invalid:\n" + "\n".join(errors)
