@@ -32,7 +32,13 @@ def open_session(settings: MeshSettings) -> Iterator["zenoh.Session"]:  # noqa: 
         yield session
 
 
-def run_router(settings: MeshSettings, stop: threading.Event) -> None:
-    """Hold a router session open until `stop` is set: the rendezvous of a lab."""
-    with open_session(settings.as_router()):
+def is_connected(session) -> bool:
+    """Whether the session reached at least one router or peer."""
+    info = session.info
+    return bool(list(info.routers_zid()) or list(info.peers_zid()))
+
+
+def run_router_process(settings: MeshSettings, stop: threading.Event, listen: list[str] = ()) -> None:
+    """Process entry for the lab's router: it listens where the lab's peers connect."""
+    with open_session(settings.as_router(tuple(listen) or None)):
         stop.wait()

@@ -1,0 +1,17 @@
+"""Scenes: which processes make up a lab. `twinmesh up SCENE` starts exactly these."""
+from __future__ import annotations
+
+from mesh.processes import ProcessSpec
+
+SCENES: dict[str, list[ProcessSpec]] = {
+    "lights": [ProcessSpec("lights", "devices.lights:run")],
+}
+DEFAULT_SCENE = "lights"
+
+
+def scene_specs(name: str, speed: float | None = 1.0) -> list[ProcessSpec]:
+    """The processes of a scene; `speed` (None = as fast as possible) goes to every simulated world."""
+    if name not in SCENES:
+        raise KeyError(f"unknown scene {name!r}; known scenes: {', '.join(sorted(SCENES))}")
+    return [ProcessSpec(s.name, s.target, {**s.kwargs, "speed": speed}) if "speed" in s.kwargs else s
+            for s in SCENES[name]]

@@ -1,0 +1,118 @@
+"""Real labs for tests: `twinmesh up` (or any twinmesh command) as a subprocess on free loopback ports.
+
+Every process is started in its own process group and stopped with SIGINT, like a user's Ctrl-C;
+`Lab.stop()` reports whether anything had to be killed, so tests can assert a clean shutdown.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def twinmesh_cmd(endpoint: str, *args: str) -> list[str]:
+    return [sys.executable, "-m", "mesh", "--connect", endpoint, *args]
+
+
+@dataclass
+class Lab:
+    """A running `twinmesh up`: its Zenoh endpoint, HTTP base URL and process."""
+
+    endpoint: str
+    http: str | None
+    proc: subprocess.Popen
+    log: Path
+    extra: list[subprocess.Popen] = field(default_factory=list)
+
+    def cli(self, *args: str, timeout: float = 60, check: bool = False) -> subprocess.CompletedProcess:
+        """Run a one-shot `twinmesh` command against this lab."""
+        return subprocess.run(twinmesh_cmd(self.endpoint, *args), capture_output=True, text=True,
+                              timeout=timeout, check=check, cwd=REPO)
+
+    def spawn(self, *args: str, log: Path | None = None) -> subprocess.Popen:
+        """Start another long-running twinmesh process (a device, a recorder) on this lab's mesh."""
+        out = open(log, "wb") if log else subprocess.DEVNULL
+        p = subprocess.Popen(twinmesh_cmd(self.endpoint, *args), stdout=out, stderr=subprocess.STDOUT,
+                             cwd=REPO, start_new_session=True)
+        self.extra.append(p)
+        return p
+
+    def wait_things(self, names: set[str], timeout: float = 30.0) -> list[str]:
+        """Poll `twinmesh things` until all `names` are listed (start-up of spawned processes)."""
+        deadline = time.monotonic() + timeout
+        listed: list[str] = []
+        while time.monotonic() < deadline:
+            r = self.cli("things", timeout=15)
+            listed = r.stdout.split()
+            if names <= set(listed):
+                return listed
+            time.sleep(0.2)
+        raise AssertionError(f"things {sorted(names - set(listed))} not listed within {timeout} s; "
+                             f"listed {listed}\n--- lab log ---\n{self.log.read_text()[-4000:]}")
+
+    def wait_http(self, path: str = "/things", timeout: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                if httpx.get(self.http + path, timeout=2).status_code < 500:
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        raise AssertionError(f"adapter not serving {path} within {timeout} s\n{self.log.read_text()[-4000:]}")
+
+    def stop(self, timeout: float = 15.0) -> bool:
+        """Ctrl-C everything; True when every process exited on its own."""
+        clean = True
+        for p in [*self.extra, self.proc]:
+            clean &= stop_process(p, timeout)
+        return clean
+
+
+def stop_process(p: subprocess.Popen, timeout: float = 15.0) -> bool:
+    if p.poll() is not None:
+        return True
+    os.killpg(p.pid, signal.SIGINT)
+    try:
+        p.wait(timeout)
+        return True
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+        return False
+
+
+def start_lab(tmp: Path, scene: str = "lights", http: bool = True, things: set[str] | None = None,
+              extra_args: tuple[str, ...] = ()) -> Lab:
+    """Start `twinmesh up SCENE` on free ports and wait until it serves."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    port = free_port()
+    args = ["up", scene, *extra_args] + (["--http", f"127.0.0.1:{port}"] if http else ["--no-http"])
+    log = tmp / f"lab-{scene}.log"
+    proc = subprocess.Popen(twinmesh_cmd(endpoint, *args), stdout=open(log, "wb"), stderr=subprocess.STDOUT,
+                            cwd=REPO, start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    lab = Lab(endpoint, f"http://127.0.0.1:{port}" if http else None, proc, log)
+    try:
+        if things:
+            lab.wait_things(things)
+        if http:
+            lab.wait_http()
+    except BaseException:
+        lab.stop()
+        raise
+    return lab
