@@ -224,6 +224,7 @@ def _follow(settings: MeshSettings, subscribe_name: str, thing: str, name: str, 
     q: queue.Queue = queue.Queue()
     with _client(settings) as c:
         sub = getattr(c, subscribe_name)(thing, name, q.put)
+        click.echo(f"{subscribe_name} {thing}/{name}: waiting for changes (Ctrl-C to stop)", err=True)
         seen = 0
         try:
             while count is None or seen < count:

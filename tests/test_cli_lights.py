@@ -1,9 +1,12 @@
 """The lights lab driven from the command line, as plain Zenoh peers."""
 import json
+import os
+import subprocess
+import time
 
 import pytest
 
-from labs import start_lab
+from labs import REPO, start_lab, twinmesh_cmd
 
 
 @pytest.fixture(scope="module")
@@ -59,14 +62,37 @@ def test_unknown_thing_is_reported_not_on_the_mesh(lab):
 
 
 def test_observe_prints_each_change(lab):
-    import subprocess
-    from labs import twinmesh_cmd, REPO
     lab.cli("invoke", "light-left", "switchOff")
     obs = subprocess.Popen(twinmesh_cmd(lab.endpoint, "observe", "light-left", "lightState", "--count", "2"),
-                           stdout=subprocess.PIPE, text=True, cwd=REPO)
-    import time
-    time.sleep(1.5)  # the observer's subscription must be declared before the changes
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    assert "waiting for changes" in obs.stderr.readline()
     lab.cli("invoke", "light-left", "switchOn")
     lab.cli("invoke", "light-left", "switchOff")
     out, _ = obs.communicate(timeout=20)
     assert out.split() == ["true", "false"]
+
+
+def test_up_stops_every_process_on_ctrl_c(tmp_path):
+    lab = start_lab(tmp_path, "lights", http=False, things={"light-left"})
+    children = _children(lab.proc.pid)
+    assert len(children) >= 2, "router and lights run as separate processes"
+    assert lab.stop(), "the lab did not stop on Ctrl-C within the grace time"
+    assert lab.proc.returncode == 0
+    deadline = time.monotonic() + 5  # the multiprocessing resource tracker exits just after its parent
+    while [pid for pid in children if _alive(pid)] and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = [pid for pid in children if _alive(pid)]
+    assert not left, f"processes left behind after Ctrl-C: {left}"
+
+
+def _children(pid: int) -> list[int]:
+    out = subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True).stdout
+    return [int(x) for x in out.split()]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+        return True
+    except ProcessLookupError:
+        return False
