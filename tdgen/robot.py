@@ -10,8 +10,8 @@ Choices a user should know about:
 - Main joints are the actuated joints on the chain from the root link to the end effector,
   minus URDF <mimic> joints and the joints named passive. Branches off that chain (a Panda's
   finger joints, for instance) are not main joints and stay at 0.
-- The automatic end effector follows the chain with the most actuated joints and stops where it
-  splits into several equally long actuated branches (a gripper's fingers); from there it follows
+- The automatic end effector follows the chain with the most movable joints and stops where it
+  splits into several equally long movable branches (a gripper's fingers); from there it follows
   a single fixed child if there is exactly one (the Panda's `panda_grasptarget`, a UR's
   `ee_link`). Pass `ee=` to choose another link.
 - The end-effector position is the origin of the URDF link frame (pybullet's
@@ -89,6 +89,7 @@ class Robot:
     ee_index: int
     passive: PassiveMap | None
     _urdf_joints: dict[str, UrdfJoint] = field(default_factory=dict, repr=False, compare=False)
+    _indices: dict[str, int] = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def load(cls, urdf: str | Path, ee: str | None = None, passive_joints: Sequence[str] = (),
@@ -114,7 +115,7 @@ class Robot:
             raise RobotError(f"{path}: no actuated joint between the root link {root!r} and {ee!r}")
         indices, link_indices = _pybullet_indices(path)
         joints = [Joint(j.name, j.type, indices[j.name], *_limits(j), _velocity(j)) for j in main]
-        return cls(path, name, joints, passive_names, ee, link_indices[ee], passive, ujoints)
+        return cls(path, name, joints, passive_names, ee, link_indices[ee], passive, ujoints, indices)
 
     # --- limits and units -------------------------------------------------------------------
     def lows(self) -> np.ndarray:
@@ -166,8 +167,8 @@ class Robot:
             m, off = uj.mimic[1], uj.mimic[2]
             return Drive(src.kind, src.index, m * src.multiplier, m * src.offset + off)
 
-        names = set(main) | set(passive) | {n for n, j in self._urdf_joints.items() if j.mimic}
-        return {n: drive(n) for n in names}
+        mimics = [n for n, j in self._urdf_joints.items() if j.mimic and n not in main and n not in passive]
+        return {n: drive(n) for n in [*main, *passive, *mimics]}
 
     def joint_values(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """Values of main, passive and mimic joints for (N, n) main-joint values, vectorised."""
@@ -182,14 +183,7 @@ class Robot:
 
     def full_joint_values(self, q: np.ndarray) -> dict[int, float]:
         """pybullet joint index -> value for main, passive and mimic joints (for resetJointState)."""
-        indices = self._indices()
-        return {indices[n]: float(v[0]) for n, v in self.joint_values(np.asarray(q)[None]).items()}
-
-    def _indices(self) -> dict[str, int]:
-        cached = getattr(self, "_index_cache", None)
-        if cached is None:
-            cached = self._index_cache = _pybullet_indices(self.urdf_path)[0]
-        return cached
+        return {self._indices[n]: float(v[0]) for n, v in self.joint_values(np.asarray(q)[None]).items()}
 
     # --- pybullet ---------------------------------------------------------------------------
     def load_into(self, client: int, base_position=(0, 0, 0), base_yaw: float = 0.0, flags: int = 0) -> int:
@@ -202,9 +196,10 @@ class Robot:
                                flags=flags, physicsClientId=client)
         except pb.error as exc:
             raise RobotError(f"{self.urdf_path}: pybullet cannot load it ({exc})") from None
-        if pb.getNumJoints(body, physicsClientId=client) != len(self._indices()):
+        if pb.getNumJoints(body, physicsClientId=client) != len(self._indices):
             pb.removeBody(body, physicsClientId=client)
-            raise RobotError(f"{self.urdf_path}: flags {flags} change the link structure; joint indices would not match")
+            raise RobotError(f"{self.urdf_path}: flags {flags} change the link structure, "
+                             "so the joint indices would not match")
         return body
 
 
@@ -265,18 +260,17 @@ def _path_to(link: str, by_child: dict[str, UrdfJoint]) -> list[UrdfJoint]:
 
 
 def _auto_ee(root: str, joints: dict[str, UrdfJoint]) -> str:
-    """Last link of the longest actuated chain; a split into equal branches (fingers) ends it."""
+    """Last link of the longest movable chain; a split into equal branches (fingers) ends it."""
     children: dict[str, list[UrdfJoint]] = {}
     for j in joints.values():
         children.setdefault(j.parent, []).append(j)
 
-    def depth(link: str) -> int:  # most actuated joints on any path below `link`
-        return max((int(j.type in MOVABLE and j.mimic is None) + depth(j.child)
-                    for j in children.get(link, [])), default=0)
+    def depth(link: str) -> int:  # most movable joints (mimic ones count) on any path below `link`
+        return max((int(j.type in MOVABLE) + depth(j.child) for j in children.get(link, [])), default=0)
 
     link = root
     while True:
-        scored = [(int(j.type in MOVABLE and j.mimic is None) + depth(j.child), j) for j in children.get(link, [])]
+        scored = [(int(j.type in MOVABLE) + depth(j.child), j) for j in children.get(link, [])]
         best = max((s for s, _ in scored), default=0)
         leaders = [j for s, j in scored if s == best]
         if best == 0 or len(leaders) > 1:
