@@ -128,10 +128,10 @@ def adapter(settings: MeshSettings, http: str) -> None:
 
 
 @main.command()
-@click.argument("path", required=False, default="recordings/twinmesh.rrd")
+@click.argument("path", required=False, type=click.Path(dir_okay=False))
 @click.pass_obj
-def record(settings: MeshSettings, path: str) -> None:
-    """Record the mesh to a Rerun .rrd file until Ctrl-C."""
+def record(settings: MeshSettings, path: str | None) -> None:
+    """Record the mesh to a Rerun .rrd file until Ctrl-C [default: recordings/twinmesh-DATE-TIME.rrd]."""
     _run_foreground(settings, RECORDER, path=path)
 
 
