@@ -283,6 +283,8 @@ class _Writer(threading.Thread):
             return mapping.property_entries(parsed.thing, parsed.name, value, schema)
         if parsed.kind == "events":
             return mapping.event_entries(parsed.thing, parsed.name, value)
+        if parsed.kind == "actions":
+            return mapping.action_entries(parsed.thing, parsed.name, value)
         return []
 
 

@@ -77,6 +77,18 @@ def event_entries(thing: str, event: str, data: Any) -> list[Entry]:
     return [Entry(events_path(thing), rr.TextLog(text, level="INFO"))]
 
 
+def action_entries(thing: str, action: str, call: Any) -> list[Entry]:
+    """One text-log line per finished action call (published by the Thing runtime)."""
+    call = call if isinstance(call, dict) else {}
+    args = "" if call.get("input") is None else _json(call["input"])
+    if call.get("error"):
+        text, level = f"{action}({args}) refused {call.get('status')}: {call['error']}", "WARN"
+    else:
+        result = "" if call.get("output") is None else f" -> {_json(call['output'])}"
+        text, level = f"{action}({args}){result} in {call.get('seconds', 0):.2f} s", "INFO"
+    return [Entry(entity_path("things", thing, "actions"), rr.TextLog(text, level=level))]
+
+
 def td_entries(thing: str, td: ThingDescription) -> list[Entry]:
     return [Entry(td_path(thing), rr.TextDocument(td_markdown(thing, td), media_type=rr.MediaType.MARKDOWN))]
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable
 
@@ -29,6 +30,16 @@ FileSource = Callable[[], bytes]
 
 JSON_ENCODING = "application/json"
 NO_INPUT = None
+
+
+class ActionCall(msgspec.Struct, omit_defaults=True):
+    """Published on `<prefix>/<thing>/actions/<a>` after each invocation, so calls can be recorded."""
+
+    input: Any = None
+    output: Any = None
+    error: str | None = None
+    status: int = 200
+    seconds: float = 0.0
 
 
 def decode_json(payload: bytes, what: str) -> Any:
@@ -209,8 +220,19 @@ class ExposedThing:
                 raise BadInput(f"action {action!r} needs an input")
             value = decode_json(payload, f"the input of {action!r}")
             validate(value, aff.input, path="input")
-        out = self._actions[action](value)
+        started = time.monotonic()
+        try:
+            out = self._actions[action](value)
+        except Problem as p:
+            self._publish_call(action, ActionCall(input=value, error=str(p), status=p.status,
+                                                  seconds=time.monotonic() - started))
+            raise
+        self._publish_call(action, ActionCall(input=value, output=out, seconds=time.monotonic() - started))
         return None if out is None else msgspec.json.encode(out)
+
+    def _publish_call(self, action: str, call: "ActionCall") -> None:
+        """Tell observers of the mesh (the recorder) that an action ran: a put on the action's key."""
+        self._publish(self.keys.action(self.name, action), call)
 
     def _answer_file(self, payload: bytes | None, name: str) -> tuple[bytes, str]:
         source, content_type = self._files.get(name, (None, ""))

@@ -86,6 +86,12 @@ def test_state_changed_events_are_in_the_things_text_log(recording):
     assert texts(recording, f"{LEFT}/events") == ["stateChanged: true", "stateChanged: false", "stateChanged: true"]
 
 
+def test_action_calls_are_in_the_things_text_log(recording):
+    calls = texts(recording, f"{LEFT}/actions")
+    assert [c.split("(")[0] for c in calls] == ["switchOn", "switchOff", "switchOn", "setColor"]
+    assert calls[-1].startswith('setColor({"r":1,"g":0.5,"b":0}) -> [1.0,0.5,0.0]')
+
+
 def test_joins_are_in_the_mesh_log(recording):
     assert {"light-left joined", "light-right joined"} <= set(texts(recording, "/mesh/log"))
 
