@@ -1,6 +1,8 @@
 #!/usr/bin/env node
 // node-wot's own HTTP servient exposing a `light-left` equivalent to twinmesh's (devices/lights.py):
 // the baseline of the HTTP benchmark and the server the interop harness is proven against.
+// node-wot serves observations as long-poll only; a small middleware adds an SSE form (unnamed
+// `data:` events, the kind node-wot's client delivers) to every observable property and event.
 //
 //   node servient-baseline.mjs [--port 8090] [--basic user:password] [--exit-with-stdin]
 //
@@ -33,9 +35,45 @@ const { HttpServer } = (await import("@node-wot/binding-http")).default;
 const THING_ID = "urn:twinmesh:baseline:light-left";
 const COLOR = { type: "array", items: { type: "number", minimum: 0, maximum: 1 }, minItems: 3, maxItems: 3 };
 
+const basicAuthorization = args.basic !== undefined && `Basic ${Buffer.from(args.basic).toString("base64")}`;
+let thing; // produced below, once the server knows its port
+
+// GET /light-left/{properties|events}/{name}/sse: one `data: <json>` event per change.
+async function sse(req, res, next) {
+    const match = /^\/light-left\/(properties|events)\/([^/?]+)\/sse$/.exec(req.url);
+    if (req.method !== "GET" || !match) return next();
+    const [kind, name] = [match[1], decodeURIComponent(match[2])];
+    const formIndex = (kind === "properties" ? thing.properties : thing.events)[name]?.forms
+        .findIndex((form) => form.subprotocol === "sse");
+    if (!(formIndex >= 0)) return next(); // node-wot answers 404
+    if (basicAuthorization && req.headers.authorization !== basicAuthorization) {
+        res.writeHead(401, { "WWW-Authenticate": 'Basic realm="light-left"' }).end();
+        return;
+    }
+    const options = { formIndex };
+    let sent = Promise.resolve(); // keeps events in order
+    const listener = (content) => {
+        sent = sent.then(async () => res.write(`data: ${(await content.toBuffer()).toString()}\n\n`));
+    };
+    // Subscribe before the headers go out: a client counts the subscription as open once it has them.
+    if (kind === "properties") await thing.handleObserveProperty(name, listener, options);
+    else await thing.handleSubscribeEvent(name, listener, options);
+    req.on("close", () => {
+        if (kind === "properties") thing.handleUnobserveProperty(name, listener, options);
+        else thing.handleUnsubscribeEvent(name, listener, options);
+    });
+    res.writeHead(200, { "Content-Type": "text/event-stream", "Cache-Control": "no-cache" });
+    res.write(": subscribed\n\n");
+}
+
 const server = new HttpServer({
     port,
     address: "127.0.0.1",
+    middleware: (req, res, next) => sse(req, res, next).catch((e) => {
+        console.error(`servient-baseline: SSE ${req.url}: ${e.message}`);
+        if (!res.headersSent) res.writeHead(500);
+        res.end();
+    }),
     ...(args.basic !== undefined && { security: [{ scheme: "basic" }] }),
 });
 const servient = new Servient();
@@ -49,7 +87,7 @@ const wot = await servient.start();
 const base = `http://127.0.0.1:${server.getPort()}`;
 server.baseUri = base;
 
-const thing = await wot.produce({
+thing = await wot.produce({
     title: "light-left",
     id: THING_ID,
     description: "node-wot baseline of twinmesh's light-left",
@@ -109,6 +147,13 @@ thing.setActionHandler("setColor", async (input) => {
     return setColor([r, g, b]);
 });
 await thing.expose();
+const sseForm = (path, op) => ({ href: `${base}/light-left/${path}/sse`, contentType: "application/json", subprotocol: "sse", op });
+for (const [name, property] of Object.entries(thing.properties)) {
+    if (property.observable) property.forms.push(sseForm(`properties/${name}`, ["observeproperty", "unobserveproperty"]));
+}
+for (const [name, event] of Object.entries(thing.events)) {
+    event.forms.push(sseForm(`events/${name}`, ["subscribeevent", "unsubscribeevent"]));
+}
 
 process.stdout.write(JSON.stringify({ ready: true, port: server.getPort(), things: { "light-left": `${base}/light-left` } }) + "\n");
 

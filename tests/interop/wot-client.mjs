@@ -135,7 +135,9 @@ class Notifications {
         this.chain = this.chain
             .then(() => output.value())
             .then(
-                (value) => this.values.length < this.count && this.values.push(value),
+                (value) => {
+                    if (this.values.length < this.count) this.values.push(value);
+                },
                 (e) => this.errors.push(errorResult(e).error),
             )
             .then(() => this.changed());
@@ -153,16 +155,16 @@ class Notifications {
         resolve();
     }
 
+    // Resolves once `count` values or an error arrived; TimeoutError after `ms`.
     async waitFor(count, ms, what) {
-        const deadline = Date.now() + ms;
-        while (this.values.length < count && this.errors.length === 0) {
-            const left = deadline - Date.now();
-            if (left <= 0) {
-                throw new TimeoutError(`timeout: ${this.values.length} of ${count} notifications of ${what} after ${ms} ms`);
-            }
-            await within(left, this.signal.promise, what).catch((e) => {
-                if (!(e instanceof TimeoutError)) throw e;
-            });
+        const arrived = async () => {
+            while (this.values.length < count && this.errors.length === 0) await this.signal.promise;
+        };
+        try {
+            await within(ms, arrived(), what);
+        } catch (e) {
+            if (!(e instanceof TimeoutError)) throw e;
+            throw new TimeoutError(`timeout: ${this.values.length} of ${count} notifications of ${what} after ${ms} ms`);
         }
     }
 
@@ -197,7 +199,9 @@ class Runner {
         if (step.formIndex !== undefined) options.formIndex = step.formIndex;
         if (step.uriVariables !== undefined) options.uriVariables = step.uriVariables;
         const what = `${step.op} ${step.name ?? ""}`.trim();
-        const t = this.thing;
+        // node-wot 0.9.2 sends no credentials for a formIndex request on a ConsumedThing that has
+        // made a request before: such steps get a ConsumedThing of their own.
+        const t = step.formIndex === undefined ? this.thing : await this.wot.consume(this.td);
         switch (step.op) {
             case "readProperty":
                 return { ok: true, value: await within(ms, t.readProperty(step.name, options).then((o) => o.value()), what) };
@@ -240,7 +244,7 @@ class Runner {
         const listener = (output) => {
             notifications.receive(output);
             notifications.chain.then(() => {
-                if (notifications.values.length >= count) this.stop(entry);
+                if (notifications.values.length >= count && entry.subscription) this.stop(entry);
             });
         };
         entry.subscription = await within(
