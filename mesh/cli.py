@@ -26,6 +26,7 @@ class LazyGroup(click.Group):
         "tdgen": "tdgen.commands:tdgen_command",
         "check": "tdgen.commands:check_command",
         "ik": "tdgen.commands_ik:ik_command",
+        "workflow": "devices.workflow:workflow_command",
     }
 
     def list_commands(self, ctx: click.Context) -> list[str]:
@@ -57,6 +58,20 @@ def main(ctx: click.Context, prefix, connect, listen, mode, multicast, verbose) 
                            listen=tuple(listen), multicast=multicast)
 
 
+def _auth(value: str | None) -> str | None:
+    """Check `--auth` early (a typo must not start an open adapter); the string goes to the adapter."""
+    from mesh.http.auth import parse_auth
+
+    try:
+        parse_auth(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--auth") from None
+    return value or None
+
+
+AUTH_HELP = "HTTP security: bearer:TOKEN or basic:USER:PASS [env TWINMESH_HTTP_AUTH]."
+
+
 def _host_port(value: str) -> tuple[str, int]:
     host, _, port = value.rpartition(":")
     if not host or not port.isdigit():
@@ -69,10 +84,12 @@ def _host_port(value: str) -> tuple[str, int]:
 @click.argument("scene", required=False)
 @click.option("--http", "http", default="127.0.0.1:8080", show_default=True, help="Adapter address HOST:PORT.")
 @click.option("--no-http", is_flag=True, help="Do not start the HTTP adapter.")
+@click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS", help=AUTH_HELP)
 @click.option("--record", type=click.Path(dir_okay=False), help="Also record the lab to this .rrd file.")
 @click.option("--speed", default="1", show_default=True, help="Simulation speed factor, or 'max'.")
 @click.pass_obj
-def up(settings: MeshSettings, scene: str | None, http: str, no_http: bool, record: str | None, speed: str) -> None:
+def up(settings: MeshSettings, scene: str | None, http: str, no_http: bool, auth: str | None, record: str | None,
+       speed: str) -> None:
     """Start a lab: router, the scene's devices, the HTTP adapter (and the recorder). Ctrl-C stops it all."""
     from devices.scenes import DEFAULT_SCENE, scene_specs
 
@@ -83,7 +100,8 @@ def up(settings: MeshSettings, scene: str | None, http: str, no_http: bool, reco
     router = ProcessSpec("router", "mesh.session:run_router_process",
                          {"listen": list(settings.listen) + [e for e in settings.connect if e not in settings.listen]})
     recorder = [ProcessSpec("recorder", RECORDER, {"path": record})] if record else []
-    http_adapter = [] if no_http else [ProcessSpec("adapter", ADAPTER, {"address": _host_port(http)})]
+    http_adapter = [] if no_http else [ProcessSpec("adapter", ADAPTER,
+                                                   {"address": _host_port(http), "auth": _auth(auth)})]
     # the router alone listens; every other process connects to it
     peers = msgspec.structs.replace(settings, listen=())
     sup = Supervisor(peers, [router] + recorder + specs + http_adapter)
@@ -121,10 +139,11 @@ def router(settings: MeshSettings) -> None:
 
 @main.command()
 @click.option("--http", "http", default="127.0.0.1:8080", show_default=True, help="Listen on HOST:PORT.")
+@click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS", help=AUTH_HELP)
 @click.pass_obj
-def adapter(settings: MeshSettings, http: str) -> None:
+def adapter(settings: MeshSettings, http: str, auth: str | None) -> None:
     """Run the WoT HTTP adapter for every Thing on the mesh."""
-    _run_foreground(settings, ADAPTER, address=_host_port(http))
+    _run_foreground(settings, ADAPTER, address=_host_port(http), auth=_auth(auth))
 
 
 @main.command()

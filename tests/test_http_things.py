@@ -1,0 +1,113 @@
+"""Discovery over HTTP: each Thing's TD, the TDD listing, `/.well-known/wot`: all valid against the
+official TD 1.1 schema (formats checked) and shaped as SPEC §5 says."""
+from __future__ import annotations
+
+from urllib.parse import quote
+
+import httpx
+import pytest
+
+from labs import start_lab
+from tdschema import assert_valid_td
+
+LIGHTS = ["light-left", "light-right"]
+TD_CONTEXT_START = ["https://www.w3.org/2019/wot/td/v1", "https://www.w3.org/2022/wot/td/v1.1"]
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    lab = start_lab(tmp_path_factory.mktemp("things"), "lights", http=True, things=set(LIGHTS))
+    yield lab
+    assert lab.stop(), "the lab did not stop cleanly"
+
+
+def all_served_tds(base: str) -> list[dict]:
+    return ([httpx.get(f"{base}/{t}").json() for t in LIGHTS] + httpx.get(f"{base}/things").json()
+            + [httpx.get(f"{base}/.well-known/wot").json()])
+
+
+def test_every_served_td_is_valid(lab):
+    tds = all_served_tds(lab.http)
+    assert len(tds) == 5
+    for td in tds:
+        assert_valid_td(td)
+        assert td["@context"][:2] == TD_CONTEXT_START
+
+
+def _schemas(td: dict):
+    def walk(schema):
+        yield schema
+        for sub in (schema.get("properties") or {}).values():
+            yield from walk(sub)
+        if isinstance(schema.get("items"), dict):
+            yield from walk(schema["items"])
+    for p in td.get("properties", {}).values():
+        yield from walk(p)
+    for a in td.get("actions", {}).values():
+        for key in ("input", "output"):
+            if key in a:
+                yield from walk(a[key])
+    for e in td.get("events", {}).values():
+        if "data" in e:
+            yield from walk(e["data"])
+
+
+@pytest.mark.parametrize("thing", LIGHTS)
+def test_thing_td_follows_spec_5(lab, thing):
+    td = httpx.get(f"{lab.http}/{thing}").json()
+    assert td["title"] == thing
+    assert td["id"] == f"urn:twinmesh:thing:{thing}", "the Thing's own id is kept"
+    assert {"rel": "self", "href": f"{lab.http}/{thing}", "type": "application/td+json"} in td["links"]
+    assert all(a["synchronous"] is True for a in td["actions"].values())
+    assert all("type" in s for s in _schemas(td))
+    for name, p in td["properties"].items():
+        subprotocols = [f.get("subprotocol") for f in p["forms"]]
+        assert subprotocols == [None, "longpoll", "sse"], name
+        assert p["forms"][0]["href"] == f"{lab.http}/{thing}/properties/{name}"
+    for name, e in td["events"].items():
+        assert [f.get("subprotocol") for f in e["forms"]] == ["longpoll", "sse"], name
+    ops = {op for f in td["forms"] for op in ([f["op"]] if isinstance(f["op"], str) else f["op"])}
+    assert {"readallproperties", "observeallproperties", "subscribeallevents"} <= ops
+    forms = [f for a in (*td["properties"].values(), *td["actions"].values(), *td["events"].values())
+             for f in a["forms"]] + td["forms"]
+    assert all(f["href"].startswith(lab.http + "/") for f in forms)
+
+
+@pytest.mark.parametrize("accept", [None, "*/*", "application/json", "text/html", "application/xml"])
+def test_td_is_td_json_whatever_the_accept_header(lab, accept):
+    headers = {"accept": accept} if accept else {}
+    for path in ("/light-left", "/.well-known/wot", f"/things/{quote('urn:twinmesh:thing:light-left', safe='')}"):
+        r = httpx.get(lab.http + path, headers=headers)
+        assert r.status_code == 200 and r.headers["content-type"] == "application/td+json", path
+
+
+def test_things_listing_is_a_tdd_array(lab):
+    r = httpx.get(f"{lab.http}/things")
+    assert r.headers["content-type"] == "application/ld+json"
+    assert [td["title"] for td in r.json()] == LIGHTS
+    page = httpx.get(f"{lab.http}/things", params={"offset": 1, "limit": 1})
+    assert [td["title"] for td in page.json()] == ["light-right"] and "link" not in page.headers
+    first = httpx.get(f"{lab.http}/things", params={"limit": 1})
+    assert [td["title"] for td in first.json()] == ["light-left"]
+    assert 'rel="next"' in first.headers["link"]
+    bad = httpx.get(f"{lab.http}/things", params={"limit": "x"})
+    assert bad.status_code == 400 and bad.headers["content-type"] == "application/problem+json"
+
+
+def test_td_by_urlencoded_id(lab):
+    r = httpx.get(f"{lab.http}/things/{quote('urn:twinmesh:thing:light-right', safe='')}")
+    assert r.status_code == 200 and r.json() == httpx.get(f"{lab.http}/light-right").json()
+    assert httpx.get(f"{lab.http}/things/{quote('urn:twinmesh:thing:nothing', safe='')}").status_code == 404
+
+
+def test_well_known_wot_is_a_thing_directory(lab):
+    td = httpx.get(f"{lab.http}/.well-known/wot").json()
+    assert td["@type"] == "ThingDirectory"
+    form = td["properties"]["things"]["forms"][0]
+    assert form["href"].startswith(f"{lab.http}/things")
+    assert form["response"]["contentType"] == "application/ld+json"
+    assert td["actions"]["retrieveThing"]["forms"][0]["htv:methodName"] == "GET"
+
+
+def test_root_lists_the_td_urls(lab):
+    assert httpx.get(lab.http + "/").json() == [f"{lab.http}/{t}" for t in LIGHTS]
