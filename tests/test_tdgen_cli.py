@@ -1,0 +1,91 @@
+"""`tdgen` and `check` commands: outputs, exit codes, and clear messages for malformed inputs."""
+from __future__ import annotations
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from tdgen.__main__ import main
+
+NO_JOINT_URDF = """<robot name="statue">
+  <link name="base"><collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision></link>
+  <link name="head"/>
+  <joint name="neck" type="fixed"><parent link="base"/><child link="head"/></joint>
+</robot>"""
+
+
+def _run(*args: str):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def td_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "xarm"
+    result = _run("tdgen", "xarm/xarm6_robot.urdf", "--scene", "table-and-wall", "--samples", 3000, "--seed", 1,
+                  "--out", out, "--workers", 1, "--concave", "--base-url", "http://lab.example/things/xarm/",
+                  "--title", "xArm 6", "--id", "urn:uuid:8a0c5f4e-2c1b-4d7e-9a51-0f3c2b1d4e6a")
+    assert result.exit_code == 0, result.output
+    return out, result.output
+
+
+def test_tdgen_writes_the_td_and_its_artefacts(td_dir):
+    out, output = td_dir
+    names = {p.name for p in out.iterdir()}
+    assert names == {"td.json", "robot-info.json", "points.csv", "workspace.stl", "workspace-concave.stl",
+                     "scene.json"}
+    td = json.loads((out / "td.json").read_text())
+    assert (td["title"], td["id"]) == ("xArm 6", "urn:uuid:8a0c5f4e-2c1b-4d7e-9a51-0f3c2b1d4e6a")
+    assert "workspace hull:" in output and "alpha shape:" in output and "3000 samples" in output
+
+
+def test_check_exits_0_for_a_good_target_and_1_with_the_reason_for_a_bad_one(td_dir):
+    out, _ = td_dir
+    ok = _run("check", out, 300, -200, 300, "--radius", 150)
+    assert ok.exit_code == 0, ok.output
+    assert "OK:" in ok.output
+    far = _run("check", out, -5000, 0, 0)                   # negative coordinates are numbers, not options
+    assert far.exit_code == 1
+    assert "REFUSED: outside the workspace hull" in far.output
+
+
+def test_check_of_a_directory_without_points_says_so(tmp_path):
+    result = _run("check", tmp_path, 0, 0, 0)
+    assert result.exit_code == 1 and "no points.csv" in result.output and "Traceback" not in result.output
+
+
+def _broken(tmp_path):
+    (tmp_path / "broken.urdf").write_text("<robot name='x'><link name='a'>")
+    (tmp_path / "statue.urdf").write_text(NO_JOINT_URDF)
+    (tmp_path / "scene.json").write_text('{"name": "s", "bodies": [{"type": "box", "size": [1, 1]}]}')
+    (tmp_path / "one.csv").write_text("twin_x,twin_y,twin_z,real_x,real_y,real_z\n1,2,3,4,5,6\n")
+    return tmp_path
+
+
+@pytest.mark.parametrize("args, problem", [
+    (["missing.urdf"], "missing.urdf: URDF file not found"),
+    (["{d}/broken.urdf"], "broken XML"),
+    (["{d}/statue.urdf"], "no actuated joint"),
+    (["ur10.urdf", "--scene", "{d}/scene.json"], "scene.json: not a valid scene"),
+    (["ur10.urdf", "--scene", "no-such-scene"], "scene file not found"),
+    (["ur10.urdf", "--calibration", "{d}/one.csv"], "1 pair given: calibration needs at least two"),
+    (["ur10.urdf", "--frame", "real"], "real frame needs a calibration"),
+    (["ur10.urdf", "--ee", "no_link"], "no link named 'no_link'"),
+])
+def test_malformed_inputs_fail_with_a_message_naming_the_problem(tmp_path, args, problem):
+    d = _broken(tmp_path)
+    result = _run("tdgen", *[a.format(d=d) for a in args], "--samples", 10, "--out", tmp_path / "out")
+    assert result.exit_code != 0
+    assert problem in result.output
+    assert "Traceback" not in result.output and isinstance(result.exception, SystemExit)
+    assert not (tmp_path / "out").exists()  # checked before any sampling or writing
+
+
+def test_a_scene_urdf_pybullet_cannot_load_fails_cleanly_from_the_worker_pool(tmp_path):
+    (tmp_path / "junk.urdf").write_text("<robot name='junk'><link name='a'>")
+    (tmp_path / "scene.json").write_text('{"name": "s", "bodies": [{"type": "urdf", "urdf": "junk.urdf"}]}')
+    result = _run("tdgen", "ur10.urdf", "--scene", tmp_path / "scene.json", "--samples", 2500, "--workers", 2,
+                  "--out", tmp_path / "out")
+    assert result.exit_code != 0
+    assert "pybullet cannot load" in result.output and "junk.urdf" in result.output
+    assert "Traceback" not in result.output

@@ -1,0 +1,147 @@
+"""tdgen end to end for the four common-structure robots, in the table-and-wall scene."""
+from __future__ import annotations
+
+import json
+import math
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pybullet as pb
+import pytest
+import trimesh
+
+from tdgen.check import Workspace
+from tdgen.generate import generate
+from tdgen.robot import Robot
+from tdgen.sampling import read_points_csv
+from tdgen.scene import load_scene
+from tdschema import assert_valid_td
+
+ROBOTS = ["franka_panda/panda.urdf", "kuka_iiwa/model.urdf", "xarm/xarm6_robot.urdf", "ur10.urdf"]
+SAMPLES = 4000
+BASE_URL = "http://lab.example:8080/things/robot/"
+
+
+@pytest.fixture(scope="module", params=ROBOTS, ids=lambda u: u.split("/")[0].replace(".urdf", ""))
+def generated(request, tmp_path_factory):
+    out = tmp_path_factory.mktemp("td")
+    result = generate(request.param, "table-and-wall", SAMPLES, seed=7, out_dir=out, base_url=BASE_URL, workers=1)
+    td = json.loads(result.files["td"].read_text())
+    positions, collision = read_points_csv(result.files["points"])
+    return request.param, result, td, positions, collision
+
+
+def test_td_is_valid_against_the_official_schema(generated):
+    _, _, td, _, _ = generated
+    assert_valid_td(td)
+    assert td["@context"] == ["https://www.w3.org/2019/wot/td/v1", "https://www.w3.org/2022/wot/td/v1.1"]
+    assert td["id"].startswith("urn:twinmesh:robot:")
+    assert td["securityDefinitions"] == {"nosec_sc": {"scheme": "nosec"}}
+
+
+def test_td_has_the_affordances_forms_and_links_of_spec_4(generated):
+    _, _, td, _, _ = generated
+    assert set(td["properties"]) == {"getJointposition", "getCartesianposition"}
+    assert set(td["actions"]) == {"moveToJointPosition", "moveToCartesianPosition"}
+    for name, prop in td["properties"].items():
+        assert prop["readOnly"] and prop["observable"]
+        assert [f["href"] for f in prop["forms"]] == [f"properties/{name}"] * 2
+        assert {op for f in prop["forms"] for op in np.atleast_1d(f["op"])} >= {"readproperty", "observeproperty"}
+    for name, action in td["actions"].items():
+        assert action["synchronous"] is True
+        assert action["forms"][0]["href"] == f"actions/{name}"
+        assert action["input"]["required"] == list(action["input"]["properties"])
+    assert td["actions"]["moveToJointPosition"]["input"]["properties"] == td["properties"]["getJointposition"]["properties"]
+    assert td["actions"]["moveToCartesianPosition"]["input"]["properties"] == \
+        td["properties"]["getCartesianposition"]["properties"]
+    assert td["base"] == BASE_URL
+    assert {(link["rel"], link["href"], link["type"]) for link in td["links"]} == {
+        ("workspace", "workspace.stl", "model/stl"), ("dataset-points", "points.csv", "text/csv"),
+        ("scene", "scene.json", "application/json")}
+
+
+def test_workspace_stl_is_a_watertight_hull_of_the_reported_volume(generated):
+    _, result, _, _, _ = generated
+    mesh = trimesh.load_mesh(result.files["workspace"])
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert mesh.volume == pytest.approx(result.volume_mm3, rel=1e-4)  # float32 vertices in STL
+
+
+def test_every_collision_free_point_is_inside_the_hull(generated):
+    _, _, _, positions, collision = generated
+    workspace = Workspace(positions, collision)
+    assert workspace.contains(positions[~collision]).all()
+    assert 0 < (~collision).sum() < len(collision)  # the scene and self-collision both matter
+
+
+def test_cartesian_limits_are_the_collision_free_bounds(generated):
+    _, result, td, positions, collision = generated
+    fields = td["properties"]["getCartesianposition"]["properties"]
+    free = positions[~collision]
+    for i, axis in enumerate("xyz"):
+        assert fields[axis]["unit"] == "mm"
+        assert fields[axis]["minimum"] == pytest.approx(free[:, i].min(), abs=1e-6)
+        assert fields[axis]["maximum"] == pytest.approx(free[:, i].max(), abs=1e-6)
+        assert result.low_mm[i] == pytest.approx(free[:, i].min(), abs=1e-6)
+
+
+def _urdf_limits(path) -> dict[str, tuple[str, float, float]]:
+    """Joint limits in deg / mm straight from the URDF XML."""
+    out = {}
+    for j in ET.parse(path).getroot().findall("joint"):
+        kind, limit = j.get("type"), j.find("limit")
+        if kind == "continuous":
+            out[j.get("name")] = ("deg", -180.0, 180.0)
+        elif kind in ("revolute", "prismatic"):
+            scale = 1000.0 if kind == "prismatic" else 180 / math.pi
+            out[j.get("name")] = ("mm" if kind == "prismatic" else "deg",
+                                  float(limit.get("lower")) * scale, float(limit.get("upper")) * scale)
+    return out
+
+
+def test_joint_limits_in_the_td_are_the_urdfs(generated):
+    urdf, result, td, _, _ = generated
+    limits = _urdf_limits(Robot.load(urdf).urdf_path)
+    fields = td["properties"]["getJointposition"]["properties"]
+    info = json.loads(result.files["robot-info"].read_text())
+    assert list(fields) == info["jointNames"] and info["jointAmount"] == len(fields) >= 6
+    for k, (name, schema) in enumerate(fields.items()):
+        unit, low, high = limits[name]
+        assert (schema["unit"], schema["minimum"], schema["maximum"]) == (unit, pytest.approx(low, abs=1e-5),
+                                                                           pytest.approx(high, abs=1e-5))
+        assert (info["jointLimitLows"][k], info["jointLimitHighs"][k]) == (pytest.approx(low), pytest.approx(high))
+
+
+def test_points_are_end_effector_positions_in_the_robot_base_frame(generated):
+    """The CSV's xyz is where pybullet puts the ee link, seen from the robot's base, for the CSV's joints."""
+    urdf, result, _, positions, _ = generated
+    robot, scene = Robot.load(urdf), load_scene("table-and-wall")
+    joints = np.loadtxt(result.files["points"], delimiter=",", skiprows=1, max_rows=200)[:, 4:]
+    client = pb.connect(pb.DIRECT)
+    try:
+        body = robot.load_into(client, scene.robot.position, math.radians(scene.robot.yaw))
+        for row, expected in zip(robot.from_user_units(joints), positions):
+            for index, value in robot.full_joint_values(row).items():
+                pb.resetJointState(body, index, value, physicsClientId=client)
+            world = pb.getLinkState(body, robot.ee_index, computeForwardKinematics=True, physicsClientId=client)[4]
+            local = (np.array(world) - scene.robot.position) * 1000.0  # yaw 0 in this scene
+            np.testing.assert_allclose(local, expected, atol=0.01)
+    finally:
+        pb.disconnect(client)
+
+
+def test_outputs_carry_the_scene_with_the_robot_pose(generated):
+    _, result, _, _, _ = generated
+    assert set(result.files) == {"td", "robot-info", "points", "workspace", "scene"}
+    scene = json.loads(result.files["scene"].read_text())
+    assert scene["robot"] == {"position": [0.0, 0.0, 0.625], "yaw": 0.0}
+    assert [b["name"] for b in scene["bodies"]] == ["floor", "table", "wall"]
+    assert result.samples == SAMPLES and result.collision_free == (~generated[4]).sum()
+
+
+def test_same_seed_gives_the_same_csv_whatever_the_worker_count(tmp_path):
+    one = generate("ur10.urdf", "table-and-wall", 2500, seed=3, out_dir=tmp_path / "one", workers=1)
+    two = generate("ur10.urdf", "table-and-wall", 2500, seed=3, out_dir=tmp_path / "two", workers=2)
+    other = generate("ur10.urdf", "table-and-wall", 2500, seed=4, out_dir=tmp_path / "other", workers=1)
+    assert one.files["points"].read_bytes() == two.files["points"].read_bytes()
+    assert one.files["points"].read_bytes() != other.files["points"].read_bytes()

@@ -1,0 +1,124 @@
+"""Scene files: the format decodes strictly, bodies land where the file says, and they make robots collide."""
+from __future__ import annotations
+
+import math
+import shutil
+
+import msgspec
+import numpy as np
+import pybullet as pb
+import pybullet_data
+import pytest
+
+from tdgen.robot import Robot
+from tdgen.sampling import CollisionWorld
+from tdgen.scene import (BoxBody, CylinderBody, RobotPlacement, Scene, SceneError, UrdfBody, build_into,
+                         cluttered_lab, empty_scene, encode_scene, load_scene)
+
+
+def test_shipped_scenes_load_by_name():
+    table = load_scene("table-and-wall")
+    assert table.robot == RobotPlacement(position=(0.0, 0.0, 0.625), yaw=0.0)
+    assert [type(b) for b in table.bodies] == [UrdfBody, UrdfBody, BoxBody]
+
+
+def test_the_benchmark_scene_has_many_bodies_and_is_what_the_function_builds():
+    lab = load_scene("cluttered-lab")
+    assert len(lab.bodies) >= 60
+    assert lab == cluttered_lab()
+    assert {type(b) for b in lab.bodies} == {UrdfBody, BoxBody, CylinderBody}
+
+
+def test_encoded_scene_decodes_to_the_same_scene():
+    lab = cluttered_lab()
+    assert msgspec.json.decode(encode_scene(lab), type=Scene) == lab
+
+
+def test_urdf_paths_are_relative_to_the_scene_file(tmp_path):
+    (tmp_path / "models").mkdir()
+    shutil.copy(f"{pybullet_data.getDataPath()}/cube.urdf", tmp_path / "models" / "crate.urdf")
+    (tmp_path / "s.json").write_text('{"name": "s", "bodies": [{"type": "urdf", "urdf": "models/crate.urdf"}]}')
+    scene = load_scene(tmp_path / "s.json")
+    assert scene.bodies[0].urdf == str(tmp_path / "models" / "crate.urdf")
+    assert scene.robot == RobotPlacement()
+
+
+@pytest.mark.parametrize("text, problem", [
+    ('{"name": "s", "bodies": [{"type": "sphere", "radius": 1}]}', "not a valid scene"),
+    ('{"name": "s", "bodies": [{"type": "box", "size": [1, 0, 1]}]}', "box size must be positive"),
+    ('{"name": "s", "bodies": [{"type": "box", "size": [1, 1, 1], "colour": "red"}]}', "not a valid scene"),
+    ('{"name": "s", "bodies": [{"type": "urdf", "urdf": "nowhere.urdf"}]}', "URDF 'nowhere.urdf' not found"),
+    ('{"name": "s", "robot": {"position": [0, 0]}}', "not a valid scene"),
+    ('{"name": "s", ', "not a valid scene"),
+])
+def test_bad_scene_files_are_refused_naming_the_file_and_the_problem(tmp_path, text, problem):
+    path = tmp_path / "bad.json"
+    path.write_text(text)
+    with pytest.raises(SceneError, match=problem) as err:
+        load_scene(path)
+    assert "bad.json" in str(err.value)
+
+
+def test_a_missing_scene_lists_the_shipped_ones():
+    with pytest.raises(SceneError, match="shipped scenes: cluttered-lab, table-and-wall"):
+        load_scene("no-such-scene")
+
+
+def test_bodies_are_built_where_the_scene_puts_them():
+    scene = Scene(name="t", bodies=[
+        BoxBody(size=(0.2, 0.4, 0.6), position=(1.0, 2.0, 3.0), rpy=(0.0, 0.0, 90.0)),
+        CylinderBody(radius=0.1, length=0.5, position=(-1.0, 0.0, 0.25)),
+        UrdfBody(urdf="pybullet_data:cube.urdf", position=(0.0, -2.0, 0.5), scale=0.5),
+    ])
+    client = pb.connect(pb.DIRECT)
+    try:
+        box, cylinder, cube = build_into(scene, client)
+        lo, hi = pb.getAABB(box, physicsClientId=client)
+        np.testing.assert_allclose(np.subtract(hi, lo), [0.4, 0.2, 0.6], atol=0.03)  # yawed 90 degrees
+        np.testing.assert_allclose(np.add(hi, lo) / 2, [1.0, 2.0, 3.0], atol=1e-6)
+        lo, hi = pb.getAABB(cylinder, physicsClientId=client)
+        np.testing.assert_allclose(np.subtract(hi, lo), [0.2, 0.2, 0.5], atol=0.03)
+        lo, hi = pb.getAABB(cube, physicsClientId=client)
+        np.testing.assert_allclose(np.subtract(hi, lo), [0.5, 0.5, 0.5], atol=0.03)
+        assert all(pb.getDynamicsInfo(b, -1, physicsClientId=client)[0] == 0 for b in (box, cylinder, cube))
+    finally:
+        pb.disconnect(client)
+
+
+def _world(scene: Scene) -> CollisionWorld:
+    return CollisionWorld(Robot.load("ur10.urdf"), scene)
+
+
+def test_a_robot_bolted_to_its_table_does_not_collide_at_home_but_hits_the_table_and_the_wall():
+    world = _world(load_scene("table-and-wall"))
+    try:
+        home = np.zeros(6)
+        down = np.array([0.0, math.pi / 2, 0, 0, 0, 0])            # upper arm into the table
+        to_wall = np.array([-math.pi / 2, -0.3, 0, 0, 0, 0])        # arm stretched towards +y
+        away = np.array([math.pi / 2, -0.3, 0, 0, 0, 0])            # the same, towards -y (open side)
+        assert world.colliding(np.array([home, down, to_wall, away])).tolist() == [False, True, True, False]
+    finally:
+        world.close()
+
+
+def test_self_collision_counts_but_not_for_adjacent_links():
+    world = _world(empty_scene())
+    try:
+        folded = np.array([0.0, 0.0, math.pi, 0, 0, 0])              # forearm folded onto the upper arm
+        bent = np.array([0.0, -1.0, 1.5, -1.0, 1.0, 0.5])
+        assert world.colliding(np.array([folded, bent, np.zeros(6)])).tolist() == [True, False, False]
+    finally:
+        world.close()
+
+
+def test_the_robot_stands_at_the_scene_pose():
+    placed = Scene(name="p", robot=RobotPlacement(position=(5.0, 0.0, 0.0), yaw=90.0),
+                   bodies=[BoxBody(size=(0.2, 0.2, 0.2), position=(5.0, 1.2, 0.13))])
+    world = _world(placed)
+    try:
+        stretched = np.array([[0.0, 0.0, 0, 0, 0, 0], [math.pi, 0.0, 0, 0, 0, 0]])
+        # UR10 at q=0 reaches along its -x; yawed 90 degrees that is world -y, away from the box;
+        # turned by 180 degrees it sweeps the box at +y
+        assert world.colliding(stretched).tolist() == [False, True]
+    finally:
+        world.close()
