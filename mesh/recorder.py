@@ -5,13 +5,16 @@ Three sides, so that nothing blocks a Zenoh callback and one thread alone owns t
   only stamp each message with its time (the sample's Zenoh timestamp, else the clock) and queue it;
 - the fetcher thread: asks each Thing that joins for its TD and current property values (network
   round trips) and queues the answers like any other message, so every series starts at the join;
+  from the `world` Thing of a simulated scene it also fetches `scene.json` and the robots' URDFs
+  (again when the world re-publishes its TD);
 - the writer thread: owns the `RecordingStream`; it takes messages in arrival order, sets the
   timelines (`time`: wall clock, `seq`: message number), logs what `mesh.rerun_mapping` makes of
   them and flushes every second; on stop it drains the queue, flushes and closes the file, which
-  then has its footer (`rerun rrd verify` passes).
+  then has its footer (`rerun rrd verify` passes). The world's scene and its `poses` go to
+  `mesh.rerun_scene.SceneDrawer`, which batches the fast poses into a few writes a second.
 
-Later message kinds (robot poses from a physics world, workspace points) are new branches of
-`_Writer.entries` and new mapping functions; the threads stay as they are.
+Later message kinds (workspace points) are new branches of `_Writer.entries` and new mapping
+functions; the threads stay as they are.
 """
 from __future__ import annotations
 
@@ -30,6 +33,8 @@ from mesh.consumer import MeshClient
 from mesh.directory import Directory
 from mesh.keys import Keys
 from mesh.problem import Problem
+from mesh.rerun_scene import SceneDrawer, SceneFiles
+from mesh.scene_model import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription
 from mesh.settings import MeshSettings
 from mesh.td import ThingDescription, decode_td
 
@@ -42,9 +47,10 @@ READY_TIMEOUT = 10.0  # how long start() waits for the TDs of the Things already
 
 
 class Message(NamedTuple):
-    """A queued message: a Zenoh sample (`key` is its key expression) or a join/leave/notice."""
+    """A queued message: a Zenoh sample (`key` is its key expression), a join/leave/notice, or the
+    scene a world Thing describes (`key` is its name, `payload` a JSON `SceneFiles`)."""
 
-    kind: str  # "sample" | "join" | "leave" | "notice"
+    kind: str  # "sample" | "join" | "leave" | "notice" | "scene"
     key: str  # the sample's key; the Thing's name for join/leave
     payload: bytes | str
     time: float  # seconds since the epoch
@@ -83,6 +89,7 @@ class Recorder:
         self.fetcher = _Fetcher(self.client, self._queue)
         self._sub = None
         self._directory: Directory | None = None
+        self._world_td = self.keys.td(WORLD_THING)
 
     def start(self, ready_timeout: float = READY_TIMEOUT) -> list[str]:
         """Subscribe, then wait until the Things alive now have been asked for their TDs and values.
@@ -127,7 +134,10 @@ class Recorder:
 
     # --- Zenoh callbacks: stamp and queue, nothing else ------------------------------------------
     def _sample(self, sample) -> None:
-        self._queue(Message("sample", str(sample.key_expr), sample.payload.to_bytes(), _sample_time(sample)))
+        key = str(sample.key_expr)
+        self._queue(Message("sample", key, sample.payload.to_bytes(), _sample_time(sample)))
+        if key == self._world_td:  # a world that changes its scene re-publishes its TD
+            self.fetcher.todo.put_nowait(WORLD_THING)
 
     def _joined(self, thing: str) -> None:
         self._queue(Message("join", thing, b"", time.time()))
@@ -190,6 +200,8 @@ class _Fetcher(threading.Thread):
             self.put(Message("notice", "", f"no TD from {thing}: {e}", time.time()))
             return
         self.put(Message("sample", self.keys.td(thing), raw, time.time()))
+        if thing == WORLD_THING:
+            self.fetch_scene(thing)  # before the first poses are read, so they find the robots drawn
         for name, prop in td.properties.items():
             if prop.writeOnly or self._halt.is_set():
                 continue
@@ -200,6 +212,19 @@ class _Fetcher(threading.Thread):
                 self.put(Message("notice", "", f"could not read {thing}/{name}: {e}", time.time()))
                 continue
             self.put(Message("sample", key, reply.payload, time.time()))
+
+    def fetch_scene(self, thing: str) -> None:
+        """The world's `scene.json` and the URDF of each of its robots, queued as one "scene" message."""
+        try:
+            scene = msgspec.json.decode(self.client.file(thing, SCENE_FILE).payload, type=SceneDescription)
+            urdfs = {}
+            for robot in scene.robots:
+                if robot.urdf not in urdfs:
+                    urdfs[robot.urdf] = self.client.file(thing, robot.urdf).payload.decode()
+        except (Problem, msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError) as e:
+            self.put(Message("notice", "", f"no scene from {thing}: {e}", time.time()))
+            return
+        self.put(Message("scene", thing, msgspec.json.encode(SceneFiles(scene, urdfs)), time.time()))
 
     def forget(self, thing: str) -> None:
         with self._cond:
@@ -225,6 +250,8 @@ class _Writer(threading.Thread):
         self.inbox = inbox
         self.tds: dict[str, ThingDescription] = {}
         self.seq = 0
+        self.scene = SceneDrawer(rec)
+        self._poses_key = keys.property(WORLD_THING, POSES_PROPERTY)
         self._styled: set[str] = set()  # entity paths whose static style is logged
 
     def run(self) -> None:
@@ -239,23 +266,59 @@ class _Writer(threading.Thread):
                     break
                 if message is not None:
                     self.write(message)
+                if self.scene.flush_due():
+                    self.flush_scene()
                 if time.monotonic() - last_flush >= FLUSH_EVERY:
                     self.rec.flush()
                     last_flush = time.monotonic()
         finally:
+            self.flush_scene()
             self.rec.flush()
             self.rec.disconnect()  # closes the file with its footer
 
+    def flush_scene(self) -> None:
+        try:
+            self.scene.flush()
+        except Exception as e:  # a bad batch must not end the recording
+            log.exception("writing the world's poses failed")
+            self.log_entries(mapping.notice_entries(f"could not record the world's poses: {e}"))
+
     def write(self, message: Message) -> None:
         try:
+            if self.draw(message):
+                return
             entries = self.entries(message)
         except Exception as e:  # a malformed payload is logged as such, the recording goes on
             entries = mapping.notice_entries(f"could not record {message.key}: {e}")
-        if not entries:
-            return
-        self.rec.set_time("time", timestamp=message.time)
-        self.rec.set_time("seq", sequence=self.seq)
+        if entries:
+            self.stamp(message)
+            self.log_entries(entries)
+
+    def stamp(self, message: Message, sim_time: float | None = None) -> int:
+        """Set the timelines for what is logged next; returns the message's number (`seq`)."""
+        seq = self.seq
         self.seq += 1
+        self.rec.set_time("time", timestamp=message.time)
+        self.rec.set_time("seq", sequence=seq)
+        sim_time = self.scene.sim_time if sim_time is None else sim_time
+        if sim_time is not None:  # anything after a world's poses also has the latest simulated time
+            self.rec.set_time("sim_time", duration=sim_time)
+        return seq
+
+    def draw(self, message: Message) -> bool:
+        """A world's scene and poses go to the scene drawer; True when `message` was one of them."""
+        if message.kind == "scene":
+            files = msgspec.json.decode(message.payload, type=SceneFiles)
+            problems = self.scene.draw_scene(files, message.time, self.stamp(message))
+            self.log_entries([e for p in problems for e in mapping.notice_entries(p)])
+            return True
+        if message.kind == "sample" and message.key == self._poses_key:
+            poses = msgspec.json.decode(message.payload, type=Poses)
+            self.log_entries(self.scene.add_poses(poses, message.time, self.stamp(message, poses.time)))
+            return True
+        return False
+
+    def log_entries(self, entries: list[mapping.Entry]) -> None:
         for e in entries:
             if e.static:
                 if e.path in self._styled:
