@@ -55,3 +55,32 @@ class Poses(msgspec.Struct, omit_defaults=True):
     joints: dict[str, dict[str, float]] = {}               # robot -> joint -> rad or m
     bodies: dict[str, Pose] = {}                           # moving body -> pose
     states: dict[str, dict[str, Any]] = {}                 # device -> small state (belt speed, sensor reading)
+
+
+# --- robots on the mesh (issue: robots as Things, TDs generated on the mesh) -----------------------
+TWIN_FILE = "twin.json"
+TWIN_REL = "twin"        # TD link to files/twin.json: what the tdgen service generates from
+MODEL_REL = "model"      # TD link to the robot's URDF file (drawn by the recorder)
+
+
+class TwinDescription(msgspec.Struct, omit_defaults=True, kw_only=True):
+    """What a robot Thing tells the mesh about its twin, so that the tdgen service can generate
+    its TD, points CSV, hull STL and scene file, and the recorder can draw it.
+
+    `urdf` is resolvable on the lab's machines (a path, a name under tdgen/robots, or a pybullet_data
+    path); `urdf_sha256` pins its content for the generation cache. `scene` is a tdgen scene
+    (tdgen/scene.py format: static bodies in the scene frame, metres) without the robot itself.
+    """
+
+    robot: str                                  # the robot Thing's name
+    urdf: str
+    urdf_sha256: str
+    urdf_file: str = "robot.urdf"               # the same URDF served as files/<urdf_file>
+    base: Pose                                  # the robot base in the scene frame (yaw in q)
+    ee: str | None = None
+    scene: dict[str, Any] = {}
+    samples: int = 80000
+    seed: int = 0
+    calibration: list[list[float]] | None = None  # rows twin_x,twin_y,twin_z,real_x,real_y,real_z (mm)
+    frame: Literal["twin", "real"] = "twin"
+    version: int = 0                            # bumped whenever the scene around the robot changes
