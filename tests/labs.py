@@ -84,6 +84,17 @@ class Lab:
         return clean
 
 
+def interrupt(p: subprocess.Popen, log: Path, hang: float = 10.0) -> None:
+    """Ctrl-C a process and assert that it ended on its own with exit code 0 (`hang` only
+    detects a hang; it is no timing goal: those live in tests/bench)."""
+    os.killpg(p.pid, signal.SIGINT)
+    try:
+        p.wait(hang)
+    finally:
+        stopped_alone = stop_process(p)
+    assert stopped_alone and p.returncode == 0, f"exit {p.returncode} after Ctrl-C\n{log.read_text()[-3000:]}"
+
+
 def stop_process(p: subprocess.Popen, timeout: float = 15.0) -> bool:
     if p.poll() is not None:
         return True
