@@ -49,6 +49,7 @@ class Belt:
         self._lock = threading.Lock()
         self.body, self.end_stops = self._build(base_z if base_z is not None else top_z - 0.038)
         world.add_pre_step(self._carry)
+        world.add_activity(lambda: self._direction != 0)  # a running belt keeps a speed-max world busy
         world.add_snapshot_source(self._fill)
 
     # --- affordances --------------------------------------------------------------------------

@@ -71,8 +71,9 @@ def make_cube(client: int, name: str, color: Sequence[float], position: Sequence
     col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=client)
     vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=[*color, 1.0], physicsClientId=client)
     body = pb.createMultiBody(mass, col, vis, list(position), physicsClientId=client)
+    # frictionAnchor: without it a resting cube creeps (~0.7 mm and 0.7 deg per simulated minute)
     pb.changeDynamics(body, -1, lateralFriction=0.6, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
-                      physicsClientId=client)
+                      frictionAnchor=1, physicsClientId=client)
     return Cube(name, tuple(color), body, size)  # type: ignore[arg-type]
 
 

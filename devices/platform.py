@@ -76,6 +76,7 @@ class IotPlatform:
         self.world, self.layout = world, layout
         self.uarm_base = np.asarray(origin, float) + UARM_BASE
         L, c, w = layout, world.client, self.w
+        self.fixtures: dict[str, int] = {}  # static furniture by name (for drawing the scene)
         self._build_furniture()
         half = L.cube / 2000.0
         slots = [w(L.warehouse_x, y, L.warehouse_floor) + [0, 0, half] for y in L.warehouse_slots_y]
@@ -155,30 +156,34 @@ class IotPlatform:
     def _build_furniture(self) -> None:
         L, c, w = self.layout, self.world.client, self.w
         floor = self.uarm_base - [0, 0, TABLE_HEIGHT]
-        static_box(c, [3, 3, 0.01], floor - [0, 0, 0.01], rgba=(0.5, 0.5, 0.5, 1))
+        self.fixtures["floor"] = static_box(c, [3, 3, 0.01], floor - [0, 0, 0.01], rgba=(0.5, 0.5, 0.5, 1))
         (x0, x1), (y0, y1) = L.table_x, L.table_y
         centre = w((x0 + x1) / 2, (y0 + y1) / 2, -15)
-        static_box(c, [(x1 - x0) / 2000, (y1 - y0) / 2000, 0.015], centre, rgba=(0.78, 0.7, 0.58, 1))
-        for sx in (x0 + 40, x1 - 40):
-            for sy in (y0 + 40, y1 - 40):
-                leg = w(sx, sy, 0)
-                static_box(c, [0.025, 0.025, (TABLE_HEIGHT - 0.03) / 2],
-                           [leg[0], leg[1], floor[2] + (TABLE_HEIGHT - 0.03) / 2], rgba=(0.3, 0.3, 0.3, 1),
-                           collide=False)
+        self.fixtures["table"] = static_box(c, [(x1 - x0) / 2000, (y1 - y0) / 2000, 0.015], centre,
+                                            rgba=(0.78, 0.7, 0.58, 1))
+        legs = [(sx, sy) for sx in (x0 + 40, x1 - 40) for sy in (y0 + 40, y1 - 40)]
+        for i, (sx, sy) in enumerate(legs, 1):
+            leg = w(sx, sy, 0)
+            self.fixtures[f"table-leg-{i}"] = static_box(c, [0.025, 0.025, (TABLE_HEIGHT - 0.03) / 2],
+                                                         [leg[0], leg[1], floor[2] + (TABLE_HEIGHT - 0.03) / 2],
+                                                         rgba=(0.3, 0.3, 0.3, 1), collide=False)
         # warehouse tray: floor, long walls, end walls
         ys = L.warehouse_slots_y
         ymid, ylen = (max(ys) + min(ys)) / 2, max(ys) - min(ys) + L.cube + 20
-        static_box(c, [0.025, ylen / 2000, L.warehouse_floor / 2000], w(L.warehouse_x, ymid, L.warehouse_floor / 2),
-                   rgba=(0.35, 0.4, 0.5, 1))
-        for dx in (-1, 1):
-            static_box(c, [0.002, ylen / 2000, 0.011], w(L.warehouse_x + dx * 25, ymid, 11), rgba=(0.35, 0.4, 0.5, 1))
-        for dy in (-1, 1):
-            static_box(c, [0.027, 0.002, 0.011], w(L.warehouse_x, ymid + dy * (ylen / 2 + 2), 11),
-                       rgba=(0.35, 0.4, 0.5, 1))
+        self.fixtures["warehouse"] = static_box(c, [0.025, ylen / 2000, L.warehouse_floor / 2000],
+                                                w(L.warehouse_x, ymid, L.warehouse_floor / 2), rgba=(0.35, 0.4, 0.5, 1))
+        for dx, side in ((-1, "front"), (1, "back")):
+            self.fixtures[f"warehouse-wall-{side}"] = static_box(
+                c, [0.002, ylen / 2000, 0.011], w(L.warehouse_x + dx * 25, ymid, 11), rgba=(0.35, 0.4, 0.5, 1))
+        for dy, side in ((-1, "right"), (1, "left")):
+            self.fixtures[f"warehouse-wall-{side}"] = static_box(
+                c, [0.027, 0.002, 0.011], w(L.warehouse_x, ymid + dy * (ylen / 2 + 2), 11), rgba=(0.35, 0.4, 0.5, 1))
         # Dobot track; colour sensor post
-        static_box(c, [0.06, 0.5, L.track_top / 2000], w(L.track_x, 0, L.track_top / 2), rgba=(0.2, 0.2, 0.22, 1))
+        self.fixtures["dobot-track"] = static_box(c, [0.06, 0.5, L.track_top / 2000], w(L.track_x, 0, L.track_top / 2),
+                                                  rgba=(0.2, 0.2, 0.22, 1))
         sx, sy, sz = L.color_sensor
-        static_box(c, [0.01, 0.01, (sz - 6) / 2000], w(sx, sy, (sz - 6) / 2), rgba=(0.25, 0.25, 0.25, 1))
+        self.fixtures["color-sensor-post"] = static_box(c, [0.01, 0.01, (sz - 6) / 2000], w(sx, sy, (sz - 6) / 2),
+                                                        rgba=(0.25, 0.25, 0.25, 1))
 
     def _fill(self, snap: Snapshot) -> None:
         for cube in self.cubes:

@@ -5,6 +5,11 @@ from mesh.processes import ProcessSpec
 
 SCENES: dict[str, list[ProcessSpec]] = {
     "lights": [ProcessSpec("lights", "devices.lights:run")],
+    # one process: the pybullet world and every device of the table, each device its own Zenoh peer
+    "iot-platform": [ProcessSpec("iot-platform", "devices.platform_process:run", {"speed": 1.0})],
+    # a generic robot arm (`twinmesh robot`) on a table beside a wall; its TD comes from the tdgen service
+    "ur10": [ProcessSpec("ur10", "devices.robot_thing:run",
+                         {"urdf": "ur10.urdf", "name": "ur10", "scene": "table-and-wall", "speed": 1.0})],
 }
 DEFAULT_SCENE = "lights"
 

@@ -5,7 +5,9 @@ stepping thread owns the client: between two steps it runs the commands other th
 advances the running motions by one step of simulated time, steps the physics and runs the
 sensors. Other threads wait on futures. Motions advance with simulated time: the speed factor
 (1.0 = real time, N = N times faster, None = as fast as the CPU allows) changes how long they
-take on the wall clock, never what they do.
+take on the wall clock, never what they do. At speed None an idle world (no motion playing and
+no activity check saying something moves, e.g. a running belt) steps in real time instead of
+spinning a core; simulated physics is the same either way.
 
 Callbacks for the outside (sensor events, pose snapshots for a recorder) run on a separate
 notifier thread, in order, so a slow subscriber never stalls the physics.
@@ -120,6 +122,7 @@ class World:
         self._motions: list[tuple[Motion, Future]] = []
         self._pre: list[Hook] = []
         self._post: list[Hook] = []
+        self._activity: list[Callable[[], bool]] = []
         self._sources: list[Callable[[Snapshot], None]] = []
         self._subscribers: list[Callable[[Snapshot], None]] = []
         self._next_snapshot = 0.0
@@ -254,6 +257,14 @@ class World:
         """`hook(dt)` on the stepping thread after every physics step (sensors look here)."""
         self._post.append(hook)
 
+    def add_activity(self, active: Callable[[], bool]) -> None:
+        """`active()` (stepping thread) says whether something moves besides the motions (a running belt)."""
+        self._activity.append(active)
+
+    def idle(self) -> bool:
+        """Nothing moves: no motion playing, no activity check true (stepping thread)."""
+        return not self._motions and not any(active() for active in self._activity)
+
     def notify(self, fn: Callable[..., None], *args: Any) -> None:
         """Call `fn(*args)` on the notifier thread (for callbacks that leave the simulation)."""
         if self._notifier is None:
@@ -292,11 +303,11 @@ class World:
                 self._run_commands()
                 self._step()
                 speed = self._speed
-                if speed is None:
+                if speed is None and not self.idle():
                     time.sleep(0)  # let waiting threads have the GIL between steps
                     next_wall = time.monotonic()
                     continue
-                next_wall += self.dt / speed
+                next_wall += self.dt / (speed or 1.0)  # an idle world at speed None: real time
                 now = time.monotonic()
                 if now - next_wall > MAX_LAG:
                     next_wall = now
@@ -304,6 +315,8 @@ class World:
                     if self._wake.wait(left):
                         self._wake.clear()
                         self._run_commands()
+                        if self._speed is None and not self.idle():
+                            break  # a motion started: full speed from now on
         except BaseException as exc:  # a broken world must not leave callers waiting forever
             log.exception("stepping thread died")
             with self._queue_lock:
