@@ -17,6 +17,7 @@ from mesh.settings import DEFAULT_ENDPOINT, MeshSettings
 
 ADAPTER = "mesh.http.server:run"
 RECORDER = "mesh.recorder:run"
+TDGEN_SERVICE = "tdgen.service:run"
 
 
 class LazyGroup(click.Group):
@@ -27,6 +28,8 @@ class LazyGroup(click.Group):
         "check": "tdgen.commands:check_command",
         "ik": "tdgen.commands_ik:ik_command",
         "workflow": "devices.workflow:workflow_command",
+        "robot": "devices.robot_thing:robot_command",
+        "eval": "devices.evaluation:eval_command",
     }
 
     def list_commands(self, ctx: click.Context) -> list[str]:
@@ -87,11 +90,16 @@ def _host_port(value: str) -> tuple[str, int]:
 @click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS", help=AUTH_HELP)
 @click.option("--record", type=click.Path(dir_okay=False), help="Also record the lab to this .rrd file.")
 @click.option("--speed", default="1", show_default=True, help="Simulation speed factor, or 'max'.")
+@click.option("--tdgen-cache", type=click.Path(file_okay=False),
+              help="Where the tdgen service caches generated robot TDs [default: $TWINMESH_CACHE/tdgen, "
+                   "else ~/.cache/twinmesh/tdgen].")
 @click.pass_obj
 def up(settings: MeshSettings, scene: str | None, http: str, no_http: bool, auth: str | None, record: str | None,
-       speed: str) -> None:
-    """Start a lab: router, the scene's devices, the HTTP adapter (and the recorder). Ctrl-C stops it all."""
+       speed: str, tdgen_cache: str | None) -> None:
+    """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
+    Ctrl-C stops it all."""
     from devices.scenes import DEFAULT_SCENE, scene_specs
+    from tdgen.service import default_cache_dir
 
     try:
         specs = scene_specs(scene or DEFAULT_SCENE, speed=_speed(speed))
@@ -100,11 +108,12 @@ def up(settings: MeshSettings, scene: str | None, http: str, no_http: bool, auth
     router = ProcessSpec("router", "mesh.session:run_router_process",
                          {"listen": list(settings.listen) + [e for e in settings.connect if e not in settings.listen]})
     recorder = [ProcessSpec("recorder", RECORDER, {"path": record})] if record else []
+    tdgen = ProcessSpec("tdgen", TDGEN_SERVICE, {"cache_dir": str(tdgen_cache or default_cache_dir())})
     http_adapter = [] if no_http else [ProcessSpec("adapter", ADAPTER,
                                                    {"address": _host_port(http), "auth": _auth(auth)})]
     # the router alone listens; every other process connects to it
     peers = msgspec.structs.replace(settings, listen=())
-    sup = Supervisor(peers, [router] + recorder + specs + http_adapter)
+    sup = Supervisor(peers, [router, tdgen] + recorder + specs + http_adapter)
     sup.start()
     click.echo(f"twinmesh lab '{scene or DEFAULT_SCENE}' on {', '.join(settings.connect)}"
                + ("" if no_http else f"; HTTP adapter on http://{http}/") + "  (Ctrl-C to stop)")

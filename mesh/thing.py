@@ -63,6 +63,7 @@ class ExposedThing:
         self._writes: dict[str, Write] = {}
         self._actions: dict[str, Act] = {}
         self._files: dict[str, tuple[FileSource, str]] = {}
+        self._file_lookup: Callable[[str], tuple[bytes, str]] | None = None
         self._values: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=f"thing-{name}")
@@ -89,6 +90,13 @@ class ExposedThing:
 
     def on_file(self, name: str, source: FileSource, content_type: str) -> "ExposedThing":
         self._files[check_name(name)] = (source, content_type)
+        return self
+
+    def on_any_file(self, lookup: Callable[[str], tuple[bytes, str]]) -> "ExposedThing":
+        """Serve every file name through one lookup, `name -> (bytes, content type)` (one queryable on
+        `files/*`), for Things whose files come and go (the tdgen service); raise NotFound for unknown
+        names. Use instead of `on_file`, not with it."""
+        self._file_lookup = lookup
         return self
 
     def state(self, prop: str, initial: Any) -> "ExposedThing":
@@ -150,6 +158,8 @@ class ExposedThing:
             self._declared.append(s.declare_queryable(k.action(self.name, a), self._dispatch(self._answer_action, a)))
         for f in self._files:
             self._declared.append(s.declare_queryable(k.file(self.name, f), self._dispatch(self._answer_file, f)))
+        if self._file_lookup is not None:
+            self._declared.append(s.declare_queryable(k.file(self.name, "*"), self._any_file))
         self._exposed = True
         self._declared.append(s.liveliness().declare_token(k.alive(self.name)))
         return self
@@ -181,6 +191,10 @@ class ExposedThing:
         def callback(query) -> None:  # runs on a Zenoh thread: never block here
             self._pool.submit(self._serve, query, answer, args)
         return callback
+
+    def _any_file(self, query) -> None:  # Zenoh thread: the file name is the last chunk of the key
+        name = str(query.key_expr).rsplit("/", 1)[-1]
+        self._pool.submit(self._serve, query, lambda _payload: self._file_lookup(name), ())
 
     def _serve(self, query, answer, args) -> None:
         try:

@@ -11,13 +11,14 @@ from labs import REPO, start_lab, twinmesh_cmd
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("lights"), "lights", http=False, things={"light-left", "light-right"})
+    lab = start_lab(tmp_path_factory.mktemp("lights"), "lights", http=False,
+                    things={"light-left", "light-right", "tdgen"})
     yield lab
     assert lab.stop(), "the lab did not stop cleanly on Ctrl-C"
 
 
-def test_things_lists_both_lights(lab):
-    assert lab.cli("things").stdout.split() == ["light-left", "light-right"]
+def test_things_lists_both_lights_and_the_td_generator(lab):
+    assert lab.cli("things").stdout.split() == ["light-left", "light-right", "tdgen"]  # `up` always starts tdgen
 
 
 def test_switch_on_then_read_shows_on(lab):

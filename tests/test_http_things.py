@@ -11,24 +11,25 @@ from labs import start_lab
 from tdschema import assert_valid_td
 
 LIGHTS = ["light-left", "light-right"]
+THINGS = [*LIGHTS, "tdgen"]  # `twinmesh up` always starts the TD generator
 TD_CONTEXT_START = ["https://www.w3.org/2019/wot/td/v1", "https://www.w3.org/2022/wot/td/v1.1"]
 
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("things"), "lights", http=True, things=set(LIGHTS))
+    lab = start_lab(tmp_path_factory.mktemp("things"), "lights", http=True, things=set(THINGS))
     yield lab
     assert lab.stop(), "the lab did not stop cleanly"
 
 
 def all_served_tds(base: str) -> list[dict]:
-    return ([httpx.get(f"{base}/{t}").json() for t in LIGHTS] + httpx.get(f"{base}/things").json()
+    return ([httpx.get(f"{base}/{t}").json() for t in THINGS] + httpx.get(f"{base}/things").json()
             + [httpx.get(f"{base}/.well-known/wot").json()])
 
 
 def test_every_served_td_is_valid(lab):
     tds = all_served_tds(lab.http)
-    assert len(tds) == 5
+    assert len(tds) == 2 * len(THINGS) + 1
     for td in tds:
         assert_valid_td(td)
         assert td["@context"][:2] == TD_CONTEXT_START
@@ -84,9 +85,9 @@ def test_td_is_td_json_whatever_the_accept_header(lab, accept):
 def test_things_listing_is_a_tdd_array(lab):
     r = httpx.get(f"{lab.http}/things")
     assert r.headers["content-type"] == "application/ld+json"
-    assert [td["title"] for td in r.json()] == LIGHTS
-    page = httpx.get(f"{lab.http}/things", params={"offset": 1, "limit": 1})
-    assert [td["title"] for td in page.json()] == ["light-right"] and "link" not in page.headers
+    assert [td["title"] for td in r.json()] == THINGS
+    page = httpx.get(f"{lab.http}/things", params={"offset": 2, "limit": 1})
+    assert [td["title"] for td in page.json()] == ["tdgen"] and "link" not in page.headers
     first = httpx.get(f"{lab.http}/things", params={"limit": 1})
     assert [td["title"] for td in first.json()] == ["light-left"]
     assert 'rel="next"' in first.headers["link"]
@@ -110,4 +111,4 @@ def test_well_known_wot_is_a_thing_directory(lab):
 
 
 def test_root_lists_the_td_urls(lab):
-    assert httpx.get(lab.http + "/").json() == [f"{lab.http}/{t}" for t in LIGHTS]
+    assert httpx.get(lab.http + "/").json() == [f"{lab.http}/{t}" for t in THINGS]

@@ -20,7 +20,8 @@ TOKEN = "n0de-wot-token"
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
     npm.ensure_node_modules()
-    lab = start_lab(tmp_path_factory.mktemp("nodewot"), "lights", http=True, things={"light-left", "light-right"})
+    lab = start_lab(tmp_path_factory.mktemp("nodewot"), "lights", http=True,
+                    things={"light-left", "light-right", "tdgen"})  # `up` always starts the TD generator
     yield lab
     assert lab.stop(), "the lab did not stop cleanly"
 
@@ -146,6 +147,6 @@ def test_node_wot_uses_the_directory_td(lab):
         {"op": "invokeAction", "name": "retrieveThing", "uriVariables": {"id": "urn:twinmesh:thing:light-left"}},
     ])
     assert all(r["ok"] for r in results), results
-    assert [td["title"] for td in results[0]["value"]] == ["light-left", "light-right"]
+    assert [td["title"] for td in results[0]["value"]] == ["light-left", "light-right", "tdgen"]
     assert [td["title"] for td in results[1]["value"]] == ["light-right"]
     assert results[2]["value"]["id"] == "urn:twinmesh:thing:light-left"

@@ -1,0 +1,202 @@
+"""`twinmesh eval`: measure a running lab's robots by their affordances (over Zenoh or WoT HTTP).
+
+`twinmesh eval ik --thing NAME --targets CSV [--via URL] [--out CSV]` drives a robot Thing to each
+target (mm, in its TD's frame) with `moveToCartesianPosition`, then reads `getCartesianposition` and
+`getJointposition`, and writes one row per target: the target, `reached` or `refused`, where the end
+effector is, the error (mm, reached targets only), the refusal reason and the joint values; then
+the mean and max error. Only the affordance names of SPEC §4 are used, so the same command measures
+any robot Thing that has them, twin or not.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import sys
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Protocol
+
+import click
+
+from mesh.consumer import NOTHING, MeshClient
+from mesh.problem import Problem
+
+MOVE, WHERE, JOINTS = "moveToCartesianPosition", "getCartesianposition", "getJointposition"
+
+
+class Consumer(Protocol):
+    def read(self, thing: str, prop: str) -> Any: ...
+    def invoke(self, thing: str, action: str, input: Any = NOTHING) -> Any: ...
+
+
+@dataclass
+class IkRow:
+    target: tuple[float, float, float]
+    status: str                               # reached | refused
+    reached: tuple[float, float, float] | None
+    error_mm: float | None
+    reason: str = ""
+    detail: str = ""
+    joints: dict[str, float] = field(default_factory=dict)
+
+
+def read_targets(path: str | Path) -> list[tuple[float, float, float]]:
+    """x,y,z (mm) per row; a header line and `#` comments are skipped; extra columns are ignored."""
+    targets = []
+    with open(path, newline="") as f:
+        for n, row in enumerate(csv.reader(f), 1):
+            if not row or row[0].lstrip().startswith("#"):
+                continue
+            try:
+                x, y, z = (float(v) for v in row[:3])
+            except ValueError:
+                if not targets and n == 1:
+                    continue  # a header
+                raise click.BadParameter(f"{path}: row {n} does not start with three numbers: {row}") from None
+            targets.append((x, y, z))
+    if not targets:
+        raise click.BadParameter(f"{path}: no target in it")
+    return targets
+
+
+def evaluate_ik(c: Consumer, thing: str, targets: list[tuple[float, float, float]]) -> list[IkRow]:
+    rows = []
+    for target in targets:
+        status, reason, detail = "reached", "", ""
+        try:
+            c.invoke(thing, MOVE, dict(zip("xyz", target)))
+        except Problem as p:
+            if p.status >= 500 and p.status != 503:
+                raise
+            status, reason, detail = "refused", p.reason or p.slug, p.detail
+        where = c.read(thing, WHERE)
+        reached = (float(where["x"]), float(where["y"]), float(where["z"]))
+        error = math.dist(reached, target) if status == "reached" else None
+        rows.append(IkRow(target, status, reached, error, reason, detail, c.read(thing, JOINTS)))
+    return rows
+
+
+def write_table(rows: list[IkRow], out) -> None:
+    joints = list(rows[0].joints) if rows else []
+    w = csv.writer(out)
+    w.writerow(["target_x", "target_y", "target_z", "status", "reached_x", "reached_y", "reached_z", "error_mm",
+                "reason", *joints])
+    for r in rows:
+        reached = [f"{v:.4f}" for v in r.reached] if r.reached else ["", "", ""]
+        w.writerow([*(f"{v:g}" for v in r.target), r.status, *reached,
+                    "" if r.error_mm is None else f"{r.error_mm:.6f}", r.reason,
+                    *(f"{r.joints.get(j, float('nan')):.6f}" for j in joints)])
+
+
+def summary(rows: list[IkRow]) -> str:
+    errors = [r.error_mm for r in rows if r.error_mm is not None]
+    refused = [r for r in rows if r.status == "refused"]
+    text = f"{len(rows)} targets: {len(errors)} reached, {len(refused)} refused"
+    if errors:
+        text += f"; error mean {sum(errors) / len(errors):.6f} mm, max {max(errors):.6f} mm"
+    reasons: dict[str, int] = {}
+    for r in refused:
+        reasons[r.reason] = reasons.get(r.reason, 0) + 1
+    if reasons:
+        text += " (" + ", ".join(f"{n} {reason}" for reason, n in sorted(reasons.items())) + ")"
+    return text
+
+
+# --- consumers ------------------------------------------------------------------------------------
+class HttpThings:
+    """A minimal WoT HTTP consumer for Things whose TDs are at `{base}/{thing}` (the adapter's layout):
+    readproperty and invokeaction through the TDs' forms; problem+json errors become Problems."""
+
+    def __init__(self, base: str, action_timeout: float = 300.0):
+        import httpx
+
+        self.base = base.rstrip("/")
+        self.http = httpx.Client(timeout=httpx.Timeout(10.0))
+        self.action_timeout = action_timeout
+        self._tds: dict[str, dict] = {}
+
+    def close(self) -> None:
+        self.http.close()
+
+    def _check(self, r) -> Any:
+        if r.status_code >= 300:
+            if r.headers.get("content-type", "").startswith("application/problem+json"):
+                raise Problem.from_json(r.content)
+            raise Problem(f"{r.request.method} {r.request.url}: HTTP {r.status_code} {r.text[:200]}",
+                          status=r.status_code)
+        return r.json() if r.content else None
+
+    def href(self, thing: str, kind: str, name: str, op: str) -> str:
+        if thing not in self._tds:
+            self._tds[thing] = self._check(self.http.get(f"{self.base}/{thing}"))
+        for form in self._tds[thing].get(kind, {}).get(name, {}).get("forms", []):
+            ops = form.get("op", [])
+            if op in ([ops] if isinstance(ops, str) else ops):
+                return form["href"]
+        raise Problem(f"{thing} has no {op} form for {name!r}", status=404)
+
+    def read(self, thing: str, prop: str) -> Any:
+        url = self.href(thing, "properties", prop, "readproperty")
+        return self._check(self.http.get(url, headers={"Accept": "application/json"}))
+
+    def invoke(self, thing: str, action: str, input: Any = NOTHING) -> Any:
+        url = self.href(thing, "actions", action, "invokeaction")
+        kwargs: dict[str, Any] = {"timeout": self.action_timeout}
+        if input is not NOTHING:
+            kwargs["json"] = input
+        return self._check(self.http.post(url, **kwargs))
+
+
+@contextmanager
+def consumer(settings, via: str | None) -> Iterator[Consumer]:
+    if via:
+        things = HttpThings(via)
+        try:
+            yield things
+        finally:
+            things.close()
+        return
+    import msgspec
+
+    from mesh.session import is_connected, open_session
+
+    if click.get_current_context().find_root().params.get("mode") is None:
+        settings = msgspec.structs.replace(settings, mode="client")  # as the CLI's one-shot commands
+    with open_session(settings) as session:
+        if not is_connected(session):
+            raise click.ClickException(f"no lab reachable at {', '.join(settings.connect)} (is `twinmesh up` running?)")
+        yield MeshClient(session, settings)
+
+
+# --- the command ----------------------------------------------------------------------------------
+@click.group("eval")
+def eval_command() -> None:
+    """Measure a running lab's robots through their affordances."""
+
+
+@eval_command.command("ik")
+@click.option("--thing", required=True, help="The robot Thing.")
+@click.option("--targets", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="CSV of targets x,y,z (mm, the robot TD's frame); a header line is allowed.")
+@click.option("--via", metavar="URL", help="Use the WoT HTTP Things at URL (e.g. the adapter, http://127.0.0.1:8080) "
+              "instead of Zenoh.")
+@click.option("--out", type=click.Path(dir_okay=False), help="Write the table to this CSV [default: stdout].")
+@click.pass_obj
+def ik_command(settings, thing: str, targets: str, via: str | None, out: str | None) -> None:
+    """Move a robot to each target with moveToCartesianPosition and measure where it got to."""
+    points = read_targets(targets)
+    with consumer(settings, via) as c:
+        try:
+            rows = evaluate_ik(c, thing, points)
+        except Problem as p:
+            raise click.ClickException(str(p)) from None
+    if out:
+        with open(out, "w", newline="") as f:
+            write_table(rows, f)
+    else:
+        buf = io.StringIO()
+        write_table(rows, buf)
+        sys.stdout.write(buf.getvalue())
+    click.echo(summary(rows), err=bool(not out))

@@ -1,0 +1,379 @@
+"""A `RobotTwin` as a Thing on the mesh, and `twinmesh robot URDF`: any common-structure arm as a Zenoh peer.
+
+The Thing serves the robot TD of SPEC §4 (`getJointposition`, `getCartesianposition`, both
+observable; `moveToJointPosition`, `moveToCartesianPosition`, which return when the motion is over)
+plus the event `twinChanged {robot, version}` and the files `twin.json` (its
+`mesh.scene_model.TwinDescription`) and its URDF. The workspace comes from the tdgen service:
+
+1. before joining, the robot subscribes to the service's `generated` event;
+2. it joins with a provisional TD (joints with their limits, Cartesian values without bounds,
+   links rel=twin and rel=model only); Cartesian moves answer 503 `workspace-generating`;
+3. the service sees it join, reads `files/twin.json`, generates (or finds in its cache) and emits
+   `generated {robot, hash, version}`;
+4. the robot fetches `<robot>.td.json`, `.points.csv`, `.workspace.stl`, `.scene.json` from the
+   service, keeps the points for its checks, serves the three artefacts as its own files and
+   replaces its TD (`update_td`: observers of `<prefix>/<robot>/td` see it), links rel
+   workspace/dataset-points/scene/twin/model with relative hrefs `files/...`.
+
+When the surroundings change (`RobotTwin.set_scene`), twin.json changes, `twinChanged` goes out,
+the service regenerates and step 4 repeats. Joint states are published while the robot moves, at
+most `rate` times per wall second, and always once more with the final value before a move's reply.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+import re
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import ExitStack
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import click
+import msgspec
+
+from mesh.consumer import MeshClient
+from mesh.problem import Problem
+from mesh.scene_model import MODEL_REL, TWIN_FILE, TWIN_REL, TwinDescription
+from mesh.settings import MeshSettings
+from mesh.td import ThingDescription, decode_td
+from mesh.thing import ExposedThing
+
+if TYPE_CHECKING:  # pybullet loads with devices.robot: `twinmesh --help` need not wait for it
+    from devices.robot import RobotTwin
+
+log = logging.getLogger(__name__)
+
+TDGEN = "tdgen"               # the service's Thing name (tdgen.service.THING)
+TWIN_CHANGED = "twinChanged"  # tdgen.service.TWIN_CHANGED
+URDF_TYPE = "application/xml"
+STATE_RATE = 20.0             # joint-state publications per wall second while moving, at most
+ARTEFACTS = {  # our file name -> (rel, media type); the service's file is `<robot>.<name>`
+    "workspace.stl": ("workspace", "model/stl"),
+    "points.csv": ("dataset-points", "text/csv"),
+    "scene.json": ("scene", "application/json"),
+}
+CARTESIAN = ("getCartesianposition", "moveToCartesianPosition")
+DEFAULT_SAMPLES = 80_000
+
+
+def slug(name: str) -> str:
+    """A Thing name from a robot name: `lbr_iiwa_14_r820` -> `lbr-iiwa-14-r820`."""
+    return re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-") or "robot"
+
+
+def urdf_reference(path: Path) -> str:
+    """How the tdgen service finds the URDF: a pybullet_data or tdgen/robots path if it is one, else absolute."""
+    import pybullet_data
+
+    from tdgen.robot import ROBOTS_DIR
+
+    for root in (Path(pybullet_data.getDataPath()).resolve(), ROBOTS_DIR.resolve()):
+        if path.is_relative_to(root):
+            return str(path.relative_to(root))
+    return str(path)
+
+
+# --- TDs -----------------------------------------------------------------------------------------
+def _links(twin: RobotTwin, generated: bool) -> list[dict[str, str]]:
+    links = [{"href": f"files/{name}", "rel": rel, "type": media} for name, (rel, media) in ARTEFACTS.items()
+             if generated]
+    links += [{"href": f"files/{TWIN_FILE}", "rel": TWIN_REL, "type": "application/json"},
+              {"href": f"files/{twin.robot.urdf_path.name}", "rel": MODEL_REL, "type": URDF_TYPE}]
+    return links
+
+
+def _finish(td: dict[str, Any], twin: RobotTwin, generated: bool) -> ThingDescription:
+    td.pop("base", None)
+    td["links"] = _links(twin, generated)
+    td["events"] = {TWIN_CHANGED: {
+        "title": "Twin changed", "description": "The robot's surroundings changed: its workspace, TD and files "
+        "are being regenerated (the TD on the mesh is replaced when they are ready).",
+        "data": {"type": "object", "required": ["robot", "version"], "properties": {
+            "robot": {"type": "string"}, "version": {"type": "integer", "minimum": 0}}},
+        "forms": [{"href": f"events/{TWIN_CHANGED}", "op": ["subscribeevent", "unsubscribeevent"],
+                   "contentType": "application/json"}]}}
+    return decode_td(td)
+
+
+def provisional_td(twin: RobotTwin) -> ThingDescription:
+    """The TD before the workspace is known: joint limits, Cartesian values without bounds."""
+    import numpy as np
+
+    from tdgen.td import build_td, robot_id
+
+    td = build_td(twin.robot, np.zeros(3), np.zeros(3), frame=twin.frame.name, title=twin.name,
+                  thing_id=robot_id(twin.name),
+                  description=f"{twin.robot.name} (twinmesh twin, from {twin.robot.urdf_path.name}). Its workspace "
+                  "is being generated by the tdgen service: Cartesian bounds and the links to the workspace hull, "
+                  "sampled points and scene follow when it is ready (this TD is then replaced); until then "
+                  "Cartesian moves answer 503.")
+    cartesian = [td["properties"]["getCartesianposition"], td["actions"]["moveToCartesianPosition"]["input"]]
+    for schema in cartesian:
+        for axis in schema["properties"].values():
+            axis.pop("minimum", None)
+            axis.pop("maximum", None)
+    return _finish(td, twin, generated=False)
+
+
+def generated_td(td_json: bytes, twin: RobotTwin, hash: str, version: int) -> ThingDescription:
+    """The TD the tdgen service generated for twin `version`, with this robot's links and events."""
+    td = msgspec.json.decode(td_json)
+    td["version"] = {"instance": str(version)}
+    td["description"] = (f"{td.get('description', '')} Generated by the tdgen service (twin version {version}, "
+                         f"hash {hash}). Cartesian moves are refused outside the workspace hull, where the collision "
+                         f"probability exceeds {twin.max_collision_probability:g}, where no joint configuration "
+                         "reaches, or where the configuration found collides.").strip()
+    return _finish(td, twin, generated=True)
+
+
+# --- the Thing -----------------------------------------------------------------------------------
+class StatePublisher:
+    """Publishes the joint state at most `rate` times per wall second while it changes; `flush()` now."""
+
+    def __init__(self, thing: ExposedThing, twin: RobotTwin, rate: float = STATE_RATE):
+        self.thing, self.twin, self.period = thing, twin, 1.0 / rate
+        self._dirty, self._stop = threading.Event(), threading.Event()
+        self._lock = threading.Lock()
+        self._last: tuple[Any, Any] | None = None
+        self._thread = threading.Thread(target=self._loop, name=f"{twin.name}-state", daemon=True)
+
+    def start(self) -> None:
+        self.twin.on_state(self._dirty.set)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._dirty.set()
+        self._thread.join(timeout=2)
+
+    def flush(self) -> None:
+        with self._lock:
+            joints, cartesian = self.twin.joint_position(), self.twin.cartesian_position()
+            last = self._last
+            if last is None or last[0] != joints:
+                self.thing.emit_property_change("getJointposition", joints)
+            if last is None or last[1] != cartesian:
+                self.thing.emit_property_change("getCartesianposition", cartesian)
+            self._last = (joints, cartesian)
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            if not self._dirty.wait(0.5):
+                continue
+            self._dirty.clear()
+            if self._stop.is_set():
+                return
+            try:
+                self.flush()
+            except Exception:  # a closing session
+                if self._stop.is_set():
+                    return
+                log.exception("%s: publishing the joint state failed", self.twin.name)
+            self._stop.wait(self.period)
+
+
+class RobotThing:
+    """A RobotTwin on one Zenoh session; use as a context manager (subscribe, expose, then tear down)."""
+
+    def __init__(self, session, settings: MeshSettings, twin: RobotTwin, *, urdf: str | None = None,
+                 samples: int = DEFAULT_SAMPLES, seed: int = 0, rate: float = STATE_RATE):
+        self.session, self.settings, self.keys = session, settings, settings.keys
+        self.twin, self.name, self.samples, self.seed = twin, twin.name, samples, seed
+        path = twin.robot.urdf_path
+        self._urdf_bytes = path.read_bytes()
+        self._urdf = urdf or urdf_reference(path)
+        self._urdf_sha = hashlib.sha256(self._urdf_bytes).hexdigest()
+        self._artefacts: dict[str, bytes] = {}
+        self.client = MeshClient(session, settings)
+        self.thing = t = ExposedThing(session, provisional_td(twin), self.name, self.keys)
+        t.on_read("getJointposition", twin.joint_position)
+        t.on_read("getCartesianposition", twin.cartesian_position)
+        t.on_action("moveToJointPosition", self._move_to_joints)
+        t.on_action("moveToCartesianPosition", self._move_to_cartesian)
+        t.on_file(TWIN_FILE, lambda: msgspec.json.encode(self.description()), "application/json")
+        t.on_file(path.name, lambda: self._urdf_bytes, URDF_TYPE)
+        for name, (_, media) in ARTEFACTS.items():
+            t.on_file(name, lambda name=name: self._artefact(name), media)
+        self.publisher = StatePublisher(t, twin, rate)
+        self._worker = ThreadPoolExecutor(1, thread_name_prefix=f"{self.name}-td")
+        self._declared: list[Any] = []
+        twin.on_scene_changed(self._scene_changed)
+
+    def description(self) -> "TwinDescription":
+        """This robot's twin.json, as it stands now."""
+        return self.twin.description(self._urdf, self._urdf_sha, self.twin.robot.urdf_path.name, self.samples,
+                                     self.seed)
+
+    def __enter__(self) -> "RobotThing":
+        ev = self.keys.event
+        self._declared.append(self.session.declare_subscriber(ev(TDGEN, "generated"), self._generated))
+        self._declared.append(self.session.declare_subscriber(ev(TDGEN, "failed"), self._failed))
+        self.thing.expose()
+        self.publisher.start()
+        self.publisher.flush()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for d in reversed(self._declared):
+            try:
+                d.undeclare()
+            except Exception:
+                pass
+        self.publisher.close()
+        self._worker.shutdown(wait=False, cancel_futures=True)
+        self.thing.destroy()
+
+    # --- handlers ----------------------------------------------------------------------------------
+    def _move_to_joints(self, joints: dict[str, float]) -> None:
+        try:
+            self.twin.move_to_joints(joints)
+        finally:
+            self.publisher.flush()  # the final state goes out before the reply
+
+    def _move_to_cartesian(self, target: dict[str, float]) -> None:
+        try:
+            self.twin.move_to_cartesian((target["x"], target["y"], target["z"]))
+        finally:
+            self.publisher.flush()
+
+    def _artefact(self, name: str) -> bytes:
+        data = self._artefacts.get(name)
+        if data is None:
+            from devices.robot import WorkspacePending
+
+            raise WorkspacePending(f"{self.name}: {name} is being generated by the tdgen service",
+                                   reason="workspace-generating")
+        return data
+
+    # --- the tdgen service (Zenoh callbacks hand off to the worker) ----------------------------------
+    def _generated(self, sample) -> None:
+        try:
+            data = msgspec.json.decode(sample.payload.to_bytes())
+        except msgspec.DecodeError:
+            return
+        if isinstance(data, dict) and data.get("robot") == self.name:
+            self._worker.submit(self._adopt, str(data.get("hash")), int(data.get("version", 0)))
+
+    def _failed(self, sample) -> None:
+        try:
+            data = msgspec.json.decode(sample.payload.to_bytes())
+        except msgspec.DecodeError:
+            return
+        if isinstance(data, dict) and data.get("robot") == self.name and data.get("version") == self.twin.version:
+            log.warning("%s: the tdgen service could not generate the workspace: %s", self.name, data.get("error"))
+            self.twin.workspace_error = str(data.get("error"))
+
+    def _adopt(self, hash: str, version: int) -> None:
+        """Fetch the generated artefacts, check with them, serve them, replace the TD."""
+        if version < self.twin.version:
+            return  # generated for surroundings that have changed since; the next one is on its way
+        if hash == self.twin.workspace_hash and self.thing.td.version == {"instance": str(version)}:
+            return  # already serving it (the service restarted and announced it again)
+        try:
+            files = {name: self.client.file(TDGEN, f"{self.name}.{name}").payload
+                     for name in ("td.json", *ARTEFACTS)}
+            from devices.robot import workspace_from_csv
+
+            workspace = workspace_from_csv(files["points.csv"])
+            td = generated_td(files["td.json"], self.twin, hash, version)
+        except (Problem, ValueError, msgspec.DecodeError, msgspec.ValidationError) as e:
+            log.warning("%s: cannot use the generated artefacts (%s): %s", self.name, hash, e)
+            return
+        self._artefacts = {name: files[name] for name in ARTEFACTS}
+        self.twin.set_workspace(workspace, hash)
+        self.thing.update_td(td)
+        log.info("%s: TD generated (hash %s, version %d, %d points)", self.name, hash, version,
+                 len(workspace.positions))
+
+    def _scene_changed(self, version: int) -> None:
+        self.thing.emit_event(TWIN_CHANGED, {"robot": self.name, "version": version})
+
+
+# --- the process ---------------------------------------------------------------------------------
+def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | None = None, scene: str | None = None,
+        base: tuple[float, float, float, float] | None = None, samples: int = DEFAULT_SAMPLES, seed: int = 0,
+        ee: str | None = None, calibration: str | None = None, max_collision_probability: float = 0.5,
+        speed: float | None = 1.0) -> None:
+    """Process entry: one robot in its own World (its scene's static bodies loaded) until `stop` is set.
+
+    `base` is (x, y, z [m], yaw [deg]) in the scene frame (default: the scene's robot placement);
+    `speed` None runs the simulation as fast as possible.
+    """
+    from devices.robot import Base, RobotTwin
+    from devices.world import World
+    from mesh.session import open_session
+    from tdgen.calibration import load_calibration
+    from tdgen.robot import Robot
+    from tdgen.scene import build_into, empty_scene, load_scene
+
+    robot = Robot.load(urdf, ee=ee)
+    the_scene = load_scene(scene) if scene else empty_scene()
+    where = Base(tuple(base[:3]), float(base[3])) if base else Base(tuple(the_scene.robot.position),
+                                                                    the_scene.robot.yaw)
+    cal = load_calibration(calibration) if calibration else None
+    world = World(speed=speed)
+    with ExitStack() as stack:
+        stack.callback(world.close)
+        build_into(the_scene, world.client)
+        world.start()
+        twin = RobotTwin(world, robot, name or slug(robot.name), where, the_scene, calibration=cal,
+                         max_collision_probability=max_collision_probability)
+        stack.callback(twin.close)
+        session = stack.enter_context(open_session(settings))
+        stack.enter_context(RobotThing(session, settings, twin, samples=samples, seed=seed))
+        stack.callback(world.close)  # first on the way out: pending motions fail, their handlers answer
+        log.info("%s: %s on the mesh (speed %s)", twin.name, robot.name, "max" if speed is None else f"{speed:g}")
+        stop.wait()
+
+
+def _speed(value: str) -> float | None:
+    if value == "max":
+        return None
+    try:
+        f = float(value)
+    except ValueError:
+        raise click.BadParameter(f"speed must be a positive number or 'max', not {value!r}") from None
+    if not f > 0 or math.isinf(f):
+        raise click.BadParameter("speed must be a positive number or 'max'")
+    return f
+
+
+@click.command("robot", context_settings={"ignore_unknown_options": True})  # lets --base values be negative
+@click.argument("urdf")
+@click.option("--scene", help="Scene file, or a shipped scene (table-and-wall, cluttered-lab) "
+              "[default: the robot alone].")
+@click.option("--name", help="Thing name, a slug [default: from the URDF's robot name].")
+@click.option("--base", nargs=4, type=float, metavar="X Y Z YAW",
+              help="Base position (m) and yaw (deg) in the scene frame [default: the scene's robot placement].")
+@click.option("--samples", type=click.IntRange(min=100), default=DEFAULT_SAMPLES, show_default=True,
+              help="Random joint configurations the workspace is sampled with.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Sampling seed.")
+@click.option("--ee", help="End-effector link [default: the end of the longest joint chain].")
+@click.option("--calibration", type=click.Path(exists=True, dir_okay=False),
+              help="Twin-to-real pairs CSV (twin_x,twin_y,twin_z,real_x,real_y,real_z, mm): the TD, checks and "
+                   "moves are then in the real robot's frame.")
+@click.option("--max-collision-probability", type=click.FloatRange(0, 1), default=0.5, show_default=True,
+              help="Refuse Cartesian targets more likely than this to collide.")
+@click.option("--speed", default="1", show_default=True, help="Simulation speed factor, or 'max'.")
+@click.pass_obj
+def robot_command(settings: MeshSettings, urdf: str, scene: str | None, name: str | None,
+                  base: tuple[float, ...] | None, samples: int, seed: int, ee: str | None, calibration: str | None,
+                  max_collision_probability: float, speed: str) -> None:
+    """Run a robot arm from its URDF as a Thing on the mesh (its TD is generated by the lab's tdgen service)."""
+    from mesh.keys import check_slug
+    from mesh.processes import install_stop_handlers
+    from tdgen.commands import USER_ERRORS
+
+    if name is not None:
+        try:
+            check_slug(name)
+        except ValueError as e:
+            raise click.BadParameter(str(e), param_hint="--name") from None
+    try:
+        run(settings, install_stop_handlers(), urdf, name, scene, base or None, samples, seed, ee, calibration,
+            max_collision_probability, _speed(speed))
+    except USER_ERRORS as e:
+        raise click.ClickException(str(e)) from None
