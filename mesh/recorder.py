@@ -6,14 +6,18 @@ Three sides, so that nothing blocks a Zenoh callback and one thread alone owns t
 - the fetcher thread: asks each Thing that joins for its TD and current property values (network
   round trips) and queues the answers like any other message, so every series starts at the join;
   from the `world` Thing of a simulated scene it also fetches `scene.json` and the robots' URDFs
-  (again when the world re-publishes its TD);
+  (again when the world re-publishes its TD); from a robot Thing (its TD links `twin.json`) its
+  twin description and URDF, and its workspace points and hull once linked (parsed here, off the
+  writer; again when the robot re-publishes its TD);
 - the writer thread: owns the `RecordingStream`; it takes messages in arrival order, sets the
   timelines (`time`: wall clock, `seq`: message number), logs what `mesh.rerun_mapping` makes of
   them and flushes every second; on stop it drains the queue, flushes and closes the file, which
   then has its footer (`rerun rrd verify` passes). The world's scene and its `poses` go to
-  `mesh.rerun_scene.SceneDrawer`, which batches the fast poses into a few writes a second.
+  `mesh.rerun_scene.SceneDrawer`, which batches the fast poses into a few writes a second; robot
+  Things, their `getJointposition` values and their workspaces to `mesh.rerun_robots.RobotDrawer`.
+  The writer sends the recording's layout (`lab_blueprint`) whenever the set of drawn robots changes.
 
-Later message kinds (workspace points) are new branches of `_Writer.entries` and new mapping
+Later message kinds are new branches of `_Writer.draw`/`_Writer.entries` and new mapping
 functions; the threads stay as they are.
 """
 from __future__ import annotations
@@ -24,7 +28,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import msgspec
 
@@ -33,8 +37,9 @@ from mesh.consumer import MeshClient
 from mesh.directory import Directory
 from mesh.keys import Keys
 from mesh.problem import Problem
-from mesh.rerun_scene import SceneDrawer, SceneFiles
-from mesh.scene_model import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription
+from mesh.rerun_robots import JOINTS_PROPERTY, RobotDrawer, WorkspaceFiles, is_robot, read_robot
+from mesh.rerun_scene import SceneDrawer, SceneFiles, lab_blueprint
+from mesh.scene_model import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription, TwinDescription
 from mesh.settings import MeshSettings
 from mesh.td import ThingDescription, decode_td
 
@@ -44,15 +49,17 @@ DEFAULT_DIR = Path("recordings")
 FLUSH_EVERY = 1.0  # seconds; a killed recorder loses at most about this much
 QUEUE_LIMIT = 200_000  # messages waiting for the writer; beyond it new ones are dropped and counted
 READY_TIMEOUT = 10.0  # how long start() waits for the TDs of the Things already alive
+SETTLE_ROUND, SETTLE_TIMEOUT = 0.2, 3.0  # start() asks who is alive until a round adds nobody
 
 
 class Message(NamedTuple):
-    """A queued message: a Zenoh sample (`key` is its key expression), a join/leave/notice, or the
-    scene a world Thing describes (`key` is its name, `payload` a JSON `SceneFiles`)."""
+    """A queued message: a Zenoh sample (`key` is its key expression), a join/leave/notice, the
+    scene a world Thing describes (`key` is its name, `payload` a JSON `SceneFiles`), or what a robot
+    Thing links (`payload` a `RobotFiles` or a parsed `Workspace`)."""
 
-    kind: str  # "sample" | "join" | "leave" | "notice" | "scene"
-    key: str  # the sample's key; the Thing's name for join/leave
-    payload: bytes | str
+    kind: str  # "sample" | "join" | "leave" | "notice" | "scene" | "robot" | "workspace"
+    key: str  # the sample's key; the Thing's name for join/leave/scene/robot/workspace
+    payload: bytes | str | Any
     time: float  # seconds since the epoch
 
 
@@ -96,12 +103,22 @@ class Recorder:
 
         Returns their names. Each of them has by then answered a query routed after the
         subscription was declared, so it knows of the subscriber: what it publishes next is recorded.
+        A fresh peer may ask before the router's declarations reach it (all of them or some) and see
+        fewer Things than are alive: it asks again until a round adds nobody, for up to SETTLE_TIMEOUT.
         """
         self.writer.start()
         self.fetcher.start()
         self._sub = self.session.declare_subscriber(self.keys.everything(), self._sample)
         self._directory = Directory(self.session, self.keys, on_join=self._joined, on_leave=self._left)
-        alive = self.client.things()
+        deadline = time.monotonic() + SETTLE_TIMEOUT
+        alive: set[str] = set()
+        while True:
+            seen = alive | set(self.client.things(timeout=1.0)) | set(self._directory.alive())
+            if (alive and seen == alive) or time.monotonic() > deadline:
+                break
+            alive = seen
+            time.sleep(SETTLE_ROUND)
+        alive = sorted(seen)
         if not self.fetcher.wait_fetched(alive, ready_timeout):
             log.warning("not all of %s answered with their TDs within %.0f s", alive, ready_timeout)
         return alive
@@ -135,13 +152,18 @@ class Recorder:
     # --- Zenoh callbacks: stamp and queue, nothing else ------------------------------------------
     def _sample(self, sample) -> None:
         key = str(sample.key_expr)
-        self._queue(Message("sample", key, sample.payload.to_bytes(), _sample_time(sample)))
+        payload = sample.payload.to_bytes()
+        self._queue(Message("sample", key, payload, _sample_time(sample)))
         if key == self._world_td:  # a world that changes its scene re-publishes its TD
-            self.fetcher.todo.put_nowait(WORLD_THING)
+            self.fetcher.todo.put_nowait((WORLD_THING, None))
+        elif key.endswith("/td"):  # a robot's regenerated workspace comes with a re-published TD
+            parsed = self.keys.parse(key)
+            if parsed is not None and parsed.kind == "td":
+                self.fetcher.todo.put_nowait((parsed.thing, payload))
 
     def _joined(self, thing: str) -> None:
         self._queue(Message("join", thing, b"", time.time()))
-        self.fetcher.todo.put_nowait(thing)
+        self.fetcher.todo.put_nowait((thing, None))
 
     def _left(self, thing: str) -> None:
         self._queue(Message("leave", thing, b"", time.time()))
@@ -165,29 +187,38 @@ def _sample_time(sample) -> float:
 
 
 class _Fetcher(threading.Thread):
-    """Asks joining Things for their TD and readable property values, off the Zenoh threads."""
+    """Asks joining Things for their TD and readable property values, off the Zenoh threads.
+
+    `todo` holds (thing, None) for a Thing that joined (or a world to fetch again) and (thing, TD
+    bytes) for a TD a Thing re-published: only what the TD links is fetched again then."""
 
     def __init__(self, client: MeshClient, put):
         super().__init__(name="recorder-fetcher", daemon=True)
         self.client = client
         self.keys = client.keys
         self.put = put
-        self.todo: queue.Queue[str] = queue.Queue()
+        self.todo: queue.Queue[tuple[str, bytes | None]] = queue.Queue()
         self._fetched: set[str] = set()
+        self._workspaces = WorkspaceFiles()
         self._cond = threading.Condition()
         self._halt = threading.Event()
 
     def run(self) -> None:
         while not self._halt.is_set():
             try:
-                thing = self.todo.get(timeout=0.2)
+                thing, td = self.todo.get(timeout=0.2)
             except queue.Empty:
                 continue
             try:
-                self.fetch(thing)
+                if td is None:
+                    self.fetch(thing)
+                else:
+                    self.fetch_links(thing, td)
             except Exception as e:  # never let one Thing stop the recording
                 log.exception("fetching %s failed", thing)
                 self.put(Message("notice", "", f"could not fetch {thing}: {e}", time.time()))
+            if td is not None:
+                continue
             with self._cond:
                 self._fetched.add(thing)
                 self._cond.notify_all()
@@ -202,6 +233,7 @@ class _Fetcher(threading.Thread):
         self.put(Message("sample", self.keys.td(thing), raw, time.time()))
         if thing == WORLD_THING:
             self.fetch_scene(thing)  # before the first poses are read, so they find the robots drawn
+        twin = self.fetch_robot(thing, td) if is_robot(td) else None  # before its joints, likewise
         for name, prop in td.properties.items():
             if prop.writeOnly or self._halt.is_set():
                 continue
@@ -212,6 +244,39 @@ class _Fetcher(threading.Thread):
                 self.put(Message("notice", "", f"could not read {thing}/{name}: {e}", time.time()))
                 continue
             self.put(Message("sample", key, reply.payload, time.time()))
+        if twin is not None:
+            self.fetch_workspace(thing, td, twin)
+
+    def fetch_links(self, thing: str, raw: bytes) -> None:
+        """A re-published TD: a robot's twin, URDF and workspace again (the writer skips what is unchanged)."""
+        try:
+            td = decode_td(raw)
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            return  # recorded as it is by the writer, which says what is wrong with it
+        if is_robot(td):
+            twin = self.fetch_robot(thing, td)
+            if twin is not None and not self._halt.is_set():
+                self.fetch_workspace(thing, td, twin)
+
+    def fetch_robot(self, thing: str, td: ThingDescription) -> TwinDescription | None:
+        """A robot Thing's twin.json and URDF, queued as one "robot" message; returns the twin."""
+        try:
+            files = read_robot(thing, td, lambda name: self.client.file(thing, name).payload)
+        except (Problem, msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError) as e:
+            self.put(Message("notice", "", f"no robot model from {thing}: {e}", time.time()))
+            return None
+        self.put(Message("robot", thing, files, time.time()))
+        return files.twin
+
+    def fetch_workspace(self, thing: str, td: ThingDescription, twin: TwinDescription) -> None:
+        """A robot's points and hull, parsed here, when its TD links them and they changed."""
+        try:
+            workspace = self._workspaces.read(thing, td, twin, lambda name: self.client.file(thing, name).payload)
+        except Exception as e:  # unreachable, malformed CSV or STL: said in the log, the recording goes on
+            self.put(Message("notice", "", f"no workspace from {thing}: {e}", time.time()))
+            return
+        if workspace is not None:
+            self.put(Message("workspace", thing, workspace, time.time()))
 
     def fetch_scene(self, thing: str) -> None:
         """The world's `scene.json` and the URDF of each of its robots, queued as one "scene" message."""
@@ -251,8 +316,11 @@ class _Writer(threading.Thread):
         self.tds: dict[str, ThingDescription] = {}
         self.seq = 0
         self.scene = SceneDrawer(rec)
+        self.robots = RobotDrawer(rec, self.scene)
         self._poses_key = keys.property(WORLD_THING, POSES_PROPERTY)
+        self._joints_suffix = f"/properties/{JOINTS_PROPERTY}"
         self._styled: set[str] = set()  # entity paths whose static style is logged
+        self._layout = b""  # what the blueprint last sent was made from
 
     def run(self) -> None:
         last_flush = time.monotonic()
@@ -266,7 +334,7 @@ class _Writer(threading.Thread):
                     break
                 if message is not None:
                     self.write(message)
-                if self.scene.flush_due():
+                if self.scene.flush_due() or self.robots.flush_due():
                     self.flush_scene()
                 if time.monotonic() - last_flush >= FLUSH_EVERY:
                     self.rec.flush()
@@ -277,11 +345,12 @@ class _Writer(threading.Thread):
             self.rec.disconnect()  # closes the file with its footer
 
     def flush_scene(self) -> None:
-        try:
-            self.scene.flush()
-        except Exception as e:  # a bad batch must not end the recording
-            log.exception("writing the world's poses failed")
-            self.log_entries(mapping.notice_entries(f"could not record the world's poses: {e}"))
+        for drawer, what in ((self.scene, "the world's poses"), (self.robots, "the robots' joints")):
+            try:
+                drawer.flush()
+            except Exception as e:  # a bad batch must not end the recording
+                log.exception("writing %s failed", what)
+                self.log_entries(mapping.notice_entries(f"could not record {what}: {e}"))
 
     def write(self, message: Message) -> None:
         try:
@@ -306,17 +375,46 @@ class _Writer(threading.Thread):
         return seq
 
     def draw(self, message: Message) -> bool:
-        """A world's scene and poses go to the scene drawer; True when `message` was one of them."""
+        """A world's scene and poses go to the scene drawer, robot Things' files and joints to the
+        robot drawer; True when `message` was one of them."""
         if message.kind == "scene":
             files = msgspec.json.decode(message.payload, type=SceneFiles)
             problems = self.scene.draw_scene(files, message.time, self.stamp(message))
+            problems += self.robots.world_changed()
             self.log_entries([e for p in problems for e in mapping.notice_entries(p)])
+            self.send_layout()
+            return True
+        if message.kind == "robot":
+            problems = self.robots.draw_robot(message.payload)
+            self.stamp(message)
+            self.log_entries([e for p in problems for e in mapping.notice_entries(p)])
+            self.send_layout()
+            return True
+        if message.kind == "workspace":
+            entries = self.robots.draw_workspace(message.payload)
+            self.stamp(message)
+            self.log_entries(entries)
             return True
         if message.kind == "sample" and message.key == self._poses_key:
             poses = msgspec.json.decode(message.payload, type=Poses)
             self.log_entries(self.scene.add_poses(poses, message.time, self.stamp(message, poses.time)))
             return True
+        if message.kind == "sample" and message.key.endswith(self._joints_suffix):
+            parsed = self.keys.parse(message.key)
+            if parsed is not None and self.robots.knows(parsed.thing):
+                values = msgspec.json.decode(message.payload) if message.payload else None
+                self.robots.add_joints(parsed.thing, values, message.time, self.stamp(message), self.scene.sim_time)
+                return True
         return False
+
+    def send_layout(self) -> None:
+        """The lab's blueprint, when what it shows changed (a scene drawn, a robot Thing drawn)."""
+        scene, things = self.scene.scene, self.robots.bases()
+        layout = msgspec.json.encode([scene, list(self.scene.robots), things])
+        if (scene is None and not things) or layout == self._layout:
+            return
+        self._layout = layout
+        self.rec.send_blueprint(lab_blueprint(scene, list(self.scene.robots), things))
 
     def log_entries(self, entries: list[mapping.Entry]) -> None:
         for e in entries:
@@ -338,6 +436,8 @@ class _Writer(threading.Thread):
             return []  # not a Thing's key (e.g. a world's, later)
         if parsed.kind == "td":
             td = self.tds[parsed.thing] = decode_td(message.payload)
+            if is_robot(td):
+                self.robots.set_td(parsed.thing, td)
             return mapping.td_entries(parsed.thing, td)
         value = msgspec.json.decode(message.payload) if message.payload else None
         td = self.tds.get(parsed.thing)

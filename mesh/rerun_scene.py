@@ -5,8 +5,10 @@ URDFs) and, in its `poses` property, where everything is at each instant of simu
 `SceneDrawer` turns both into Rerun data. It is owned by the recorder's writer thread and writes to
 its RecordingStream. Poses may come fast (a world at `--speed max`), and one `log` call per value
 costs about 2 ms a sample, so joint values and body poses are kept in per-entity batches and
-written with `send_columns` a few times a second (about 0.1 ms a sample). Drawing a scene also
-sends a blueprint, so a recording opens on the lab in 3D beside its joint plots and its log.
+written with `send_columns` a few times a second (about 0.1 ms a sample). `Robot` (a URDF drawn
+under an entity, placed by its base, its joints animated) is shared with `mesh.rerun_robots`, which
+draws the robot Things of the lab; `lab_blueprint` lays out both, so a recording opens on the lab in
+3D beside its joint plots and its log.
 
 Entities (frames: `tf#/world` is the scene frame; robot `r`'s links are the frames `r/<link>`):
 - `world`: Z-up view coordinates;
@@ -20,7 +22,8 @@ Entities (frames: `tf#/world` is the scene frame; robot `r`'s links are the fram
 - `world/bodies/<b>`: each body as a box, cylinder or sphere with its colour (static) and its pose
   (static, or over time for moving bodies such as cubes);
 - `world/states/<device>/<key>`: each device's small state by the property rules of
-  `mesh.rerun_mapping`, logged when it changes.
+  `mesh.rerun_mapping`, logged when it changes;
+- `robots/<r>/...`: robot Things (see `mesh.rerun_robots`).
 Poses are stamped on three timelines: `time` (wall clock), `seq` (the recorder's message number)
 and `sim_time` (the world's simulated seconds).
 """
@@ -42,6 +45,7 @@ from mesh.rerun_mapping import Entry, entity_path
 from mesh.scene_model import Body, Pose, Poses, RobotModel, SceneDescription
 
 WORLD = "world"
+ROBOTS = "robots"  # robot Things (mesh.rerun_robots)
 SCENE_FRAME = "tf#/world"  # the implicit frame of the `world` entity
 BATCH_ROWS = 200  # samples held before they are written...
 BATCH_AGE = 0.25  # ...or seconds since the oldest one; a killed recorder loses about this much more
@@ -65,10 +69,6 @@ def joint_value_path(robot: str, joint: str) -> str:
     return entity_path(WORLD, "joints", robot, joint)
 
 
-def joint_transform_path(robot: str, joint: str) -> str:
-    return entity_path(WORLD, "robots", robot, "joints", joint)
-
-
 def body_path(body: str) -> str:
     return entity_path(WORLD, "bodies", body)
 
@@ -77,30 +77,44 @@ def state_path(device: str, key: str) -> str:
     return entity_path(WORLD, "states", device, key)
 
 
+def thing_robot_path(robot: str, *parts: str) -> str:
+    """`robots/<r>/...`: a robot Thing's model, joint series and workspace (mesh.rerun_robots)."""
+    return entity_path(ROBOTS, robot, *parts)
+
+
 # --- robots --------------------------------------------------------------------------------------
 @dataclass
 class Robot:
-    """A robot of the scene as drawn: its URDF tree (frames prefixed `<name>/`) and its moving joints."""
+    """A robot as drawn: its URDF tree under the entity `root` (frames prefixed `<name>/`), its moving joints."""
 
     name: str
+    root: str  # entity path (escaped), e.g. `world/robots/uarm`
     tree: UrdfTree
     joints: dict[str, UrdfJoint]
     base_frame: str
 
     @classmethod
-    def load(cls, model: RobotModel, urdf: str) -> "Robot":
+    def load(cls, name: str, urdf: str, root: str) -> "Robot":
         with tempfile.TemporaryDirectory(prefix="twinmesh-urdf-") as tmp:
-            path = Path(tmp) / f"{model.name}.urdf"
+            path = Path(tmp) / f"{name}.urdf"
             path.write_text(urdf)
-            tree = UrdfTree.from_file_path(path, None, frame_prefix=f"{model.name}/",
-                                           static_transform_entity_path=f"{robot_path(model.name)}/tf_static")
+            tree = UrdfTree.from_file_path(path, None, frame_prefix=f"{name}/",
+                                           static_transform_entity_path=f"{root}/tf_static")
         joints = {j.name: j for j in tree.joints() if j.joint_type != "fixed"}
-        return cls(model.name, tree, joints, f"{model.name}/{tree.root_link().name}")
+        return cls(name, root, tree, joints, f"{name}/{tree.root_link().name}")
+
+    def draw(self, rec, base: Pose) -> None:
+        """Its geometry and zero-pose joints (static), primitives solid, the base placed in the scene frame."""
+        chunks, filled = self.static_chunks()
+        rec.send_chunks(chunks)
+        for path, archetype in filled:
+            rec.log(path, getattr(rr, archetype).from_fields(fill_mode="solid"), static=True)
+        rec.log(f"{self.root}/base", _placement(base, self.base_frame), static=True)
 
     def static_chunks(self) -> tuple[list, list[tuple[str, str]]]:
-        """The URDF's visual geometry and zero-pose joint transforms moved under `world/robots/<name>`,
-        and the (path, archetype) of the primitives among them (to be drawn solid)."""
-        root, target = "/" + rr.escape_entity_path_part(self.tree.name), "/" + robot_path(self.name)
+        """The URDF's visual geometry and zero-pose joint transforms moved under `root`, and the
+        (path, archetype) of the primitives among them (to be drawn solid)."""
+        root, target = "/" + rr.escape_entity_path_part(self.tree.name), "/" + self.root
         chunks, filled = [], []
         for chunk in self.tree.stream():
             path = chunk.entity_path
@@ -114,6 +128,15 @@ class Robot:
             chunks.append(chunk)
         return chunks, filled
 
+    def joint_path(self, joint: str) -> str:
+        return f"{self.root}/joints/{rr.escape_entity_path_part(joint)}"
+
+    def send_joint(self, rec, joint: str, indexes: list, values: list[float]) -> None:
+        """A joint's transforms over time (values in rad or m), if the URDF has it."""
+        urdf_joint = self.joints.get(joint)
+        if urdf_joint is not None:
+            rec.send_columns(self.joint_path(joint), indexes, urdf_joint.compute_transform_columns(values, clamp=False))
+
     def unit(self, joint: str) -> str:
         j = self.joints.get(joint)
         return "m" if j is not None and j.joint_type == "prismatic" else "rad"
@@ -121,15 +144,18 @@ class Robot:
 
 # --- batches of samples --------------------------------------------------------------------------
 @dataclass
-class _Batch:
-    """Rows of one entity waiting for one `send_columns`: the three timelines and the values."""
+class SampleBatch:
+    """Rows of one entity waiting for one `send_columns`: the timelines and the values.
+
+    `sim` is None for a row without simulated time (a robot Thing before any world's poses); the
+    batch then goes out on `time` and `seq` only."""
 
     wall: list[float] = field(default_factory=list)
     seq: list[int] = field(default_factory=list)
-    sim: list[float] = field(default_factory=list)
+    sim: list[float | None] = field(default_factory=list)
     values: list[Any] = field(default_factory=list)
 
-    def add(self, wall: float, seq: int, sim: float, value: Any) -> None:
+    def add(self, wall: float, seq: int, sim: float | None, value: Any) -> None:
         self.wall.append(wall)
         self.seq.append(seq)
         self.sim.append(sim)
@@ -141,8 +167,9 @@ class _Batch:
         columns = made.get(key)
         if columns is None:  # numpy arrays: rerun converts lists element by element
             columns = made[key] = [rr.TimeColumn("time", timestamp=np.array(self.wall)),
-                                   rr.TimeColumn("seq", sequence=np.array(self.seq, dtype=np.int64)),
-                                   rr.TimeColumn("sim_time", duration=np.array(self.sim))]
+                                   rr.TimeColumn("seq", sequence=np.array(self.seq, dtype=np.int64))]
+            if None not in self.sim:
+                columns.append(rr.TimeColumn("sim_time", duration=np.array(self.sim)))
         return columns
 
 
@@ -156,8 +183,8 @@ class SceneDrawer:
         self.bodies: dict[str, Body] = {}
         self.sim_time: float | None = None  # the latest simulated time seen
         self._scene: SceneFiles | None = None
-        self._joints: dict[tuple[str, str], _Batch] = {}
-        self._poses: dict[str, _Batch] = {}  # body name or robot name (its base) -> poses
+        self._joints: dict[tuple[str, str], SampleBatch] = {}
+        self._poses: dict[str, SampleBatch] = {}  # body name or robot name (its base) -> poses
         self._states: dict[tuple[str, str], Any] = {}
         self._styled: dict[str, str] = {}  # joint series -> the unit its name was logged with
         self._rows = 0
@@ -182,16 +209,16 @@ class SceneDrawer:
             self.rec.log(robot_path(gone), rr.Clear(recursive=True), static=True)
         for gone in old_bodies - set(self.bodies):
             self.rec.log(body_path(gone), rr.Clear(recursive=True), static=True)
-        self.rec.send_blueprint(lab_blueprint(files.scene, list(self.robots)))
         return problems
 
+    @property
+    def scene(self) -> SceneDescription | None:
+        """The scene drawn last, if any."""
+        return self._scene.scene if self._scene is not None else None
+
     def _draw_robot(self, model: RobotModel, urdf: str) -> None:
-        robot = Robot.load(model, urdf)
-        chunks, filled = robot.static_chunks()
-        self.rec.send_chunks(chunks)
-        for path, archetype in filled:
-            self.rec.log(path, getattr(rr, archetype).from_fields(fill_mode="solid"), static=True)
-        self.rec.log(f"{robot_path(model.name)}/base", _placement(model.base, robot.base_frame), static=True)
+        robot = Robot.load(model.name, urdf, robot_path(model.name))
+        robot.draw(self.rec, model.base)
         self.robots[model.name] = robot
 
     def _draw_body(self, body: Body, wall: float, seq: int) -> None:
@@ -219,7 +246,7 @@ class SceneDrawer:
             for joint, value in joints.items():
                 batch = self._joints.get((robot, joint))
                 if batch is None:
-                    batch = self._joints[(robot, joint)] = _Batch()
+                    batch = self._joints[(robot, joint)] = SampleBatch()
                 batch.add(wall, seq, sim, float(value))
         for name, pose in poses.bodies.items():
             self._batch_pose(name, pose, wall, seq)
@@ -237,7 +264,7 @@ class SceneDrawer:
     def _batch_pose(self, name: str, pose: Pose, wall: float, seq: int) -> None:
         batch = self._poses.get(name)
         if batch is None:
-            batch = self._poses[name] = _Batch()
+            batch = self._poses[name] = SampleBatch()
         batch.add(wall, seq, self.sim_time or 0.0, pose)
         if self._oldest is None:
             self._oldest = time.monotonic()
@@ -256,7 +283,7 @@ class SceneDrawer:
         for name, batch in poses.items():
             self._send_poses(name, batch, batch.indexes(made))
 
-    def _send_joint(self, robot_name: str, joint: str, batch: _Batch, indexes: list[rr.TimeColumn]) -> None:
+    def _send_joint(self, robot_name: str, joint: str, batch: SampleBatch, indexes: list[rr.TimeColumn]) -> None:
         robot = self.robots.get(robot_name)
         path = joint_value_path(robot_name, joint)
         unit = robot.unit(joint) if robot is not None else "rad"
@@ -264,12 +291,10 @@ class SceneDrawer:
             self.rec.log(path, rr.SeriesLines(names=[f"{joint} ({unit})"]), static=True)
             self._styled[path] = unit
         self.rec.send_columns(path, indexes, rr.Scalars.columns(scalars=np.array(batch.values)))
-        urdf_joint = robot.joints.get(joint) if robot is not None else None
-        if urdf_joint is not None:
-            self.rec.send_columns(joint_transform_path(robot_name, joint), indexes,
-                                  urdf_joint.compute_transform_columns(batch.values, clamp=False))
+        if robot is not None:
+            robot.send_joint(self.rec, joint, indexes, batch.values)
 
-    def _send_poses(self, name: str, batch: _Batch, indexes: list[rr.TimeColumn]) -> None:
+    def _send_poses(self, name: str, batch: SampleBatch, indexes: list[rr.TimeColumn]) -> None:
         translations = np.array([p.p for p in batch.values])
         quaternions = np.array([p.q for p in batch.values])
         robot = self.robots.get(name)
@@ -283,30 +308,46 @@ class SceneDrawer:
             self.rec.send_columns(body_path(name), indexes, columns)
 
 
-def lab_blueprint(scene: SceneDescription, robots: list[str]):
-    """How a recording of a lab opens: the 3D scene, joint plots per robot, states, the log; on `sim_time`."""
+def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing_robots: dict[str, Pose]):
+    """How a recording of a lab opens: the lab in 3D, joint plots per robot, states, the log.
+
+    `thing_robots` are the robot Things (name -> base pose). Their workspaces are hidden in the lab
+    view (one eye toggle per robot in the blueprint panel: `robots/<r>/workspace`) and shown in a
+    second 3D tab, `workspaces`. The time panel opens on `sim_time` when a world runs, else `time`.
+    """
     import rerun.blueprint as rrb
 
-    lab = rrb.Spatial3DView(origin=f"/{WORLD}", name=scene.name,
-                            contents=[f"+ /{WORLD}/robots/**", f"+ /{WORLD}/bodies/**"],
-                            eye_controls=_eye(scene))
-    joints = [rrb.TimeSeriesView(origin="/" + entity_path(WORLD, "joints", r), name=f"{r} joints") for r in robots]
+    bases = [r.base.p for r in scene.robots] if scene is not None else []
+    bases += [p.p for p in thing_robots.values()]
+    contents = [f"+ /{WORLD}/robots/**", f"+ /{WORLD}/bodies/**", f"+ /{ROBOTS}/**"]
+    hidden = {"/" + thing_robot_path(r, "workspace"): rrb.EntityBehavior(visible=False) for r in thing_robots}
+    eye = _eye(bases, 2.5 if thing_robots else 1.0)  # a UR10's workspace is 2.6 m across
+    lab = rrb.Spatial3DView(origin=f"/{WORLD}", name=scene.name if scene is not None else "lab",
+                            contents=contents, overrides=hidden, eye_controls=eye)
+    if thing_robots:
+        lab = rrb.Tabs(lab, rrb.Spatial3DView(origin=f"/{WORLD}", name="workspaces", contents=contents,
+                                              eye_controls=eye))
+    joints = [rrb.TimeSeriesView(origin="/" + entity_path(WORLD, "joints", r), name=f"{r} joints")
+              for r in world_robots]
+    joints += [rrb.TimeSeriesView(origin="/" + thing_robot_path(r, "joints"),
+                                  name=f"{r} joints" + (" (Thing)" if r in world_robots else ""))
+               for r in thing_robots]
     values = rrb.Tabs(rrb.TimeSeriesView(origin=f"/{WORLD}/states", name="device states"),
                       rrb.TimeSeriesView(origin="/things", name="properties"))
     log = rrb.TextLogView(origin="/", name="log")
     side = rrb.Vertical(rrb.Tabs(*joints), values, log) if joints else rrb.Vertical(values, log)
     return rrb.Blueprint(rrb.Horizontal(lab, side, column_shares=[3, 2]),
                          rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
-                         rrb.TimePanel(timeline="sim_time", state="collapsed"))
+                         rrb.TimePanel(timeline="sim_time" if scene is not None else "time", state="collapsed"))
 
 
-def _eye(scene: SceneDescription):
-    """A camera in front of and above the robots, far enough to see them all."""
+def _eye(bases: list, least: float = 1.0):
+    """A camera in front of and above the robots, far enough to see them all (`least` from one)."""
     import rerun.blueprint as rrb
 
-    bases = np.array([r.base.p for r in scene.robots] or [(0.0, 0.0, 0.0)])
+    bases = np.array(bases or [(0.0, 0.0, 0.0)])
     target = bases.mean(axis=0)
-    reach = max(1.0, 1.6 * float(np.ptp(bases, axis=0).max()))
+    reach = max(least, 1.6 * float(np.ptp(bases, axis=0).max()))
     return rrb.EyeControls3D(position=target + reach * np.array([-0.35, -1.0, 0.6]), look_target=target,
                              eye_up=(0.0, 0.0, 1.0))
 
