@@ -385,13 +385,12 @@ def _consumer(settings, via: str | None, auth: str | None) -> Iterator[Consumer]
         finally:
             consumer.close()
         return
-    import msgspec
+    from mesh.problem import Problem
+    from mesh.session import one_shot_session
 
-    from mesh.session import is_connected, open_session
-
-    if click.get_current_context().find_root().params.get("mode") is None:
-        settings = msgspec.structs.replace(settings, mode="client")  # as the CLI's one-shot commands
-    with open_session(settings) as session:
-        if not is_connected(session):
-            raise click.ClickException(f"no lab reachable at {', '.join(settings.connect)} (is `twinmesh up` running?)")
-        yield MeshConsumer(MeshClient(session, settings))
+    mode_given = click.get_current_context().find_root().params.get("mode") is not None
+    try:
+        with one_shot_session(settings, mode_given) as session:
+            yield MeshConsumer(MeshClient(session, settings))
+    except Problem as p:
+        raise click.ClickException(str(p)) from None

@@ -166,19 +166,18 @@ def record(settings: MeshSettings, path: str | None) -> None:
 # --- consuming, as a plain Zenoh peer --------------------------------------------------------
 @contextmanager
 def _client(settings: MeshSettings):
-    """A one-shot consumer session. Client mode by default: a fresh peer may query before the
-    router's declarations reach it and find nobody; a client sends every query to the router."""
-    from mesh.session import is_connected, open_session
+    """A one-shot consumer; Problems (no lab, Thing gone, refused) become CLI messages."""
+    from mesh.session import one_shot_session
 
-    if click.get_current_context().find_root().params.get("mode") is None:
-        settings = msgspec.structs.replace(settings, mode="client")
-    with open_session(settings) as session:
-        if not is_connected(session) and settings.mode != "router":
-            raise click.ClickException(f"no lab reachable at {', '.join(settings.connect)} (is `twinmesh up` running?)")
-        try:
+    try:
+        with one_shot_session(settings, _mode_given()) as session:
             yield MeshClient(session, settings)
-        except Problem as p:
-            raise click.ClickException(str(p)) from None
+    except Problem as p:
+        raise click.ClickException(str(p)) from None
+
+
+def _mode_given() -> bool:
+    return click.get_current_context().find_root().params.get("mode") is not None
 
 
 def _parse_json(text: str, what: str) -> Any:

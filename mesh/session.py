@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import os
 import threading
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from typing import Iterator
 
 from mesh.settings import MeshSettings
@@ -42,3 +42,30 @@ def run_router_process(settings: MeshSettings, stop: threading.Event, listen: li
     """Process entry for the lab's router: it listens where the lab's peers connect."""
     with open_session(settings.as_router(tuple(listen) or None)):
         stop.wait()
+
+
+@contextmanager
+def one_shot_session(settings: MeshSettings, mode_given: bool = False) -> Iterator["zenoh.Session"]:  # noqa: F821
+    """A session for a short-lived consumer (a CLI command, a workflow).
+
+    Client mode unless a mode was asked for: a fresh peer may query before the router's
+    declarations reach it and find nobody; a client sends every query to the router.
+    Raises Unavailable when no lab is reachable.
+    """
+    import msgspec
+
+    from mesh.problem import Unavailable
+
+    import zenoh
+
+    if not mode_given:
+        settings = msgspec.structs.replace(settings, mode="client")
+    unreachable = f"no lab reachable at {', '.join(settings.connect)} (is `twinmesh up` running?)"
+    with ExitStack() as stack:
+        try:
+            session = stack.enter_context(open_session(settings))
+        except zenoh.ZError:  # a client that reaches no router fails to open
+            raise Unavailable(unreachable) from None
+        if not is_connected(session) and settings.mode != "router":
+            raise Unavailable(unreachable)
+        yield session

@@ -97,3 +97,11 @@ def _alive(pid: int) -> bool:
         return True
     except ProcessLookupError:
         return False
+
+
+def test_no_lab_is_a_clear_message_not_a_traceback():
+    from labs import free_port
+
+    r = subprocess.run(twinmesh_cmd(f"tcp/127.0.0.1:{free_port()}", "read", "light-left", "lightState"),
+                       capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert r.returncode == 1 and "no lab reachable" in r.stderr and "Traceback" not in r.stderr
