@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import math
 import re
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -330,15 +329,12 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
 
 
 def _speed(value: str) -> float | None:
-    if value == "max":
-        return None
+    from mesh.settings import parse_speed
+
     try:
-        f = float(value)
-    except ValueError:
-        raise click.BadParameter(f"speed must be a positive number or 'max', not {value!r}") from None
-    if not f > 0 or math.isinf(f):
-        raise click.BadParameter("speed must be a positive number or 'max'")
-    return f
+        return parse_speed(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
 
 
 @click.command("robot", context_settings={"ignore_unknown_options": True})  # lets --base values be negative

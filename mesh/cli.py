@@ -121,15 +121,12 @@ def up(settings: MeshSettings, scene: str | None, http: str, no_http: bool, auth
 
 
 def _speed(value: str) -> float | None:
-    if value == "max":
-        return None
+    from mesh.settings import parse_speed
+
     try:
-        f = float(value)
-    except ValueError:
-        raise click.BadParameter(f"speed must be a positive number or 'max', not {value!r}") from None
-    if f <= 0:
-        raise click.BadParameter("speed must be positive")
-    return f
+        return parse_speed(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
 
 
 def _run_foreground(settings: MeshSettings, target: str, **kwargs: Any) -> None:

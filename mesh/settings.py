@@ -47,3 +47,16 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     def as_router(self, listen: tuple[str, ...] | None = None) -> "MeshSettings":
         """The settings of the lab's router: it listens where the peers connect."""
         return msgspec.structs.replace(self, mode="router", listen=listen or self.connect, connect=())
+
+
+def parse_speed(value: str) -> float | None:
+    """A simulation speed factor from the command line: a positive number, or 'max' (None)."""
+    if value == "max":
+        return None
+    try:
+        f = float(value)
+    except ValueError:
+        raise ValueError(f"speed must be a positive number or 'max', not {value!r}") from None
+    if not 0 < f < float("inf"):
+        raise ValueError("speed must be a positive number or 'max'")
+    return f
