@@ -6,6 +6,7 @@ switchOn / switchOff / setColor actions and a `stateChanged` event.
 from __future__ import annotations
 
 import threading
+from typing import Callable
 
 from mesh.keys import Keys
 from mesh.td import ThingDescription, decode_td, thing_id
@@ -47,12 +48,16 @@ def light_td(name: str) -> ThingDescription:
 class Light:
     """One light's behaviour on an ExposedThing: state-backed properties plus actions and an event."""
 
-    def __init__(self, session, name: str, keys: Keys):
+    def __init__(self, session, name: str, keys: Keys,
+                 on_change: Callable[[bool, list[float]], None] | None = None):
+        """`on_change(state, color)` after every change (the iot-lab's lamp shows it in the world)."""
         from mesh.thing import ExposedThing
 
+        self._on_change = on_change
         self.thing = ExposedThing(session, light_td(name), name, keys)
         self.thing.state("lightState", False).state("lightColor", [1.0, 1.0, 1.0])
         self.thing.on_write("lightState", self.set_state)
+        self.thing.on_write("lightColor", lambda rgb: self.set_color(dict(zip("rgb", rgb))))
         self.thing.on_action("switchOn", lambda _: self.set_state(True))
         self.thing.on_action("switchOff", lambda _: self.set_state(False))
         self.thing.on_action("setColor", self.set_color)
@@ -60,11 +65,17 @@ class Light:
     def set_state(self, on: bool) -> None:
         if self.thing.set_value("lightState", on):
             self.thing.emit_event("stateChanged", on)
+            self._changed()
 
     def set_color(self, rgb: dict) -> list[float]:
         color = [float(rgb[c]) for c in "rgb"]
-        self.thing.set_value("lightColor", color)
+        if self.thing.set_value("lightColor", color):
+            self._changed()
         return color
+
+    def _changed(self) -> None:
+        if self._on_change is not None:
+            self._on_change(self.thing.value("lightState"), self.thing.value("lightColor"))
 
 
 def run(settings, stop: threading.Event, names: tuple[str, ...] = LIGHTS) -> None:

@@ -25,8 +25,10 @@ from devices.belt import Belt
 from devices.dobot import CUBE_SIZE, Cube, Dobot, Warehouse, make_cube
 from devices.sensors import ColorSensor, InfraredSensor
 from devices.uarm import Uarm, write_calibration_csv
-from devices.world import DEFAULT_DT, Snapshot, World, body_pose, static_box
-from devices.compensation import MODELS
+from devices.world import DEFAULT_DT, Snapshot, World, body_pose, place, static_box
+from devices.compensation import DOBOT_URDF, MODELS, UARM_URDF
+from devices.scene_description import box, pose
+from mesh.scene_model import Body, RobotModel, SceneDescription
 
 TABLE_HEIGHT = 0.75
 UARM_BASE = (-0.375, 0.0, TABLE_HEIGHT)   # scene frame, m: the real uArm frame's origin (origin=0)
@@ -66,18 +68,26 @@ class Layout:
 
 
 LAYOUT = Layout()
+# where reset(cubes=n) sets spare cubes aside: on the table left of conveyor belt 1, real uArm frame (mm)
+ASIDE_XY = [(x, y) for y in (-440.0, -490.0) for x in (380.0, 420.0, 460.0)]
 
 
 class IotPlatform:
-    """The scene's world and its devices (behaviour objects the mesh layer exposes)."""
+    """The scene's world and its devices (behaviour objects the mesh layer exposes).
+
+    `origin` shifts the whole table in the world (the iot-lab places it in a room); `floor=False`
+    leaves the floor to whoever builds the room around it.
+    """
+
+    name = "iot-platform"
 
     def __init__(self, world: World, origin: Sequence[float] = (0.0, 0.0, 0.0), layout: Layout = LAYOUT,
-                 colors: dict[str, tuple[float, float, float]] = CUBE_COLORS):
+                 colors: dict[str, tuple[float, float, float]] = CUBE_COLORS, floor: bool = True):
         self.world, self.layout = world, layout
         self.uarm_base = np.asarray(origin, float) + UARM_BASE
         L, c, w = layout, world.client, self.w
         self.fixtures: dict[str, int] = {}  # static furniture by name (for drawing the scene)
-        self._build_furniture()
+        self._build_furniture(floor)
         half = L.cube / 2000.0
         slots = [w(L.warehouse_x, y, L.warehouse_floor) + [0, 0, half] for y in L.warehouse_slots_y]
         if len(colors) > len(slots):
@@ -119,23 +129,54 @@ class IotPlatform:
     def cube(self, name: str) -> Cube:
         return next(c for c in self.cubes if c.name == name or c.name == f"cube-{name}")
 
-    def reset(self) -> None:
-        """All cubes back in the warehouse (original order), robots home, belts stopped.
+    @property
+    def cube_count(self) -> int:
+        return len(self.cubes)
+
+    def robot_urdfs(self) -> dict[str, Any]:
+        """Robot (Thing name) -> its URDF file; the world Thing serves it as `<robot>.urdf`."""
+        return {"uarm": UARM_URDF, "dobot": DOBOT_URDF}
+
+    def reset(self, cubes: int | None = None) -> None:
+        """All cubes back in the warehouse (original order), robots home, belts stopped; with
+        `cubes`, only the first that many stay in the queue and the others are set aside on the
+        table, out of every device's reach.
 
         Running motions are cancelled (their callers get MotionCancelled); then each device's lock
         is taken so no action is half-way while the state is put back.
         """
         self.world.cancel_motions()
         with self.uarm.lock, self.dobot.lock:
-            self.world.run(self._reset)
+            self.world.run(lambda: self._reset(cubes))
 
-    def _reset(self) -> None:
+    def _reset(self, keep: int | None) -> None:  # stepping thread
         for belt in self.belts.values():
             belt.reset()
         self.uarm.reset_state()
         self.dobot.reset_state(self.cubes)
+        if keep is not None:
+            queue = self.warehouse.queue
+            self.warehouse.queue, aside = queue[:keep], queue[keep:]
+            for cube, (x, y) in zip(aside, ASIDE_XY):
+                place(self.world.client, cube.body, self.w(x, y, cube.size * 500.0))
         for sensor in self.infrared.values():
             sensor.refresh()
+
+    def describe(self) -> SceneDescription:
+        """Robots, static and moving bodies as they stand now (stepping thread, or before the world starts)."""
+        c = self.world.client
+        named = dict(self.fixtures)
+        for name, belt in self.belts.items():
+            named[name] = belt.body
+            for i, stop in enumerate(belt.end_stops):
+                named[f"{name}-end-stop-{i + 1}"] = stop
+        for name, sensor in [*self.infrared.items(), ("color-sensor", self.color_sensor)]:
+            named[name] = sensor.body
+        bodies: list[Body] = [box(c, name, body) for name, body in named.items()]
+        bodies += [box(c, cube.name, cube.body, moving=True) for cube in self.cubes]
+        robots = [RobotModel(name=robot, urdf=f"{robot}.urdf", base=pose(body_pose(c, self.devices[robot].arm.body)))
+                  for robot in self.robot_urdfs()]
+        return SceneDescription(name=self.name, robots=robots, bodies=bodies)
 
     def close(self) -> None:
         self.world.close()
@@ -153,10 +194,11 @@ class IotPlatform:
                     top_z=float(w(0, 0, L.belt_top)[2]), width=L.belt_width / 1000.0,
                     base_z=float(w(0, 0, 0)[2]), stop_margin=(L.cube / 2 + 0.5) / 1000.0)
 
-    def _build_furniture(self) -> None:
+    def _build_furniture(self, with_floor: bool) -> None:
         L, c, w = self.layout, self.world.client, self.w
         floor = self.uarm_base - [0, 0, TABLE_HEIGHT]
-        self.fixtures["floor"] = static_box(c, [3, 3, 0.01], floor - [0, 0, 0.01], rgba=(0.5, 0.5, 0.5, 1))
+        if with_floor:
+            self.fixtures["floor"] = static_box(c, [3, 3, 0.01], floor - [0, 0, 0.01], rgba=(0.5, 0.5, 0.5, 1))
         (x0, x1), (y0, y1) = L.table_x, L.table_y
         centre = w((x0 + x1) / 2, (y0 + y1) / 2, -15)
         self.fixtures["table"] = static_box(c, [(x1 - x0) / 2000, (y1 - y0) / 2000, 0.015], centre,

@@ -153,6 +153,7 @@ class RobotTwin:
         self._mimic = [n for n in robot.drives() if n not in {*self._main, *robot.passive_names}]
         q0 = np.clip(np.zeros(len(robot.joints)) if home is None else robot.from_user_units(home),
                      robot.lows(), robot.highs())
+        self.home = q0
         self.arm: KinematicArm = world.run(lambda: self._build(q0))
 
     def _build(self, q0: np.ndarray) -> KinematicArm:  # stepping thread (or before the world starts)
@@ -226,6 +227,19 @@ class RobotTwin:
         for listener in list(self._scene_listeners):
             listener(version)
         return version
+
+    def collides_in(self, scene: Scene) -> bool:
+        """Whether the robot, where it stands now, would collide in `scene` (e.g. with a box about to be added)."""
+        world = CollisionWorld(self.robot, placed(scene, self.base))
+        try:
+            return bool(world.colliding(self.arm.q[None])[0])
+        finally:
+            world.close()
+
+    def reset(self) -> None:
+        """Back to the home configuration at once (a scene reset; the world cancels a move under way first)."""
+        with self._move_lock:
+            self.world.run(lambda: self._apply(self.home))
 
     def description(self, urdf: str, urdf_sha256: str, urdf_file: str, samples: int, seed: int = 0) -> TwinDescription:
         """What the tdgen service generates this robot's TD from (mesh.scene_model contract)."""

@@ -37,6 +37,7 @@ from mesh.consumer import MeshClient
 from mesh.problem import Problem
 from mesh.scene_model import MODEL_REL, TWIN_FILE, TWIN_REL, TwinDescription
 from mesh.settings import MeshSettings
+from mesh.state_publisher import StatePublisher
 from mesh.td import ThingDescription, decode_td
 from mesh.thing import ExposedThing
 
@@ -129,51 +130,6 @@ def generated_td(td_json: bytes, twin: RobotTwin, hash: str, version: int) -> Th
 
 
 # --- the Thing -----------------------------------------------------------------------------------
-class StatePublisher:
-    """Publishes the joint state at most `rate` times per wall second while it changes; `flush()` now."""
-
-    def __init__(self, thing: ExposedThing, twin: RobotTwin, rate: float = STATE_RATE):
-        self.thing, self.twin, self.period = thing, twin, 1.0 / rate
-        self._dirty, self._stop = threading.Event(), threading.Event()
-        self._lock = threading.Lock()
-        self._last: tuple[Any, Any] | None = None
-        self._thread = threading.Thread(target=self._loop, name=f"{twin.name}-state", daemon=True)
-
-    def start(self) -> None:
-        self.twin.on_state(self._dirty.set)
-        self._thread.start()
-
-    def close(self) -> None:
-        self._stop.set()
-        self._dirty.set()
-        self._thread.join(timeout=2)
-
-    def flush(self) -> None:
-        with self._lock:
-            joints, cartesian = self.twin.joint_position(), self.twin.cartesian_position()
-            last = self._last
-            if last is None or last[0] != joints:
-                self.thing.emit_property_change("getJointposition", joints)
-            if last is None or last[1] != cartesian:
-                self.thing.emit_property_change("getCartesianposition", cartesian)
-            self._last = (joints, cartesian)
-
-    def _loop(self) -> None:
-        while not self._stop.is_set():
-            if not self._dirty.wait(0.5):
-                continue
-            self._dirty.clear()
-            if self._stop.is_set():
-                return
-            try:
-                self.flush()
-            except Exception:  # a closing session
-                if self._stop.is_set():
-                    return
-                log.exception("%s: publishing the joint state failed", self.twin.name)
-            self._stop.wait(self.period)
-
-
 class RobotThing:
     """A RobotTwin on one Zenoh session; use as a context manager (subscribe, expose, then tear down)."""
 
@@ -196,7 +152,9 @@ class RobotThing:
         t.on_file(path.name, lambda: self._urdf_bytes, URDF_TYPE)
         for name, (_, media) in ARTEFACTS.items():
             t.on_file(name, lambda name=name: self._artefact(name), media)
-        self.publisher = StatePublisher(t, twin, rate)
+        self.publisher = StatePublisher(t, lambda: {"getJointposition": twin.joint_position(),
+                                                    "getCartesianposition": twin.cartesian_position()}, rate)
+        twin.on_state(self.publisher.changed)
         self._worker = ThreadPoolExecutor(1, thread_name_prefix=f"{self.name}-td")
         self._declared: list[Any] = []
         twin.on_scene_changed(self._scene_changed)

@@ -9,14 +9,25 @@ SCENES: dict[str, list[ProcessSpec]] = {
     "iot-platform": [ProcessSpec("iot-platform", "devices.platform_process:run", {"speed": 1.0})],
     # a generic robot arm (`twinmesh robot`) on a table beside a wall; its TD comes from the tdgen service
     "ur10": [ProcessSpec("ur10", "devices.robot_thing:run",
-                         {"urdf": "ur10.urdf", "name": "ur10", "scene": "table-and-wall", "speed": 1.0})],
+                         {"urdf": "ur10.urdf", "name": "ur10", "scene": "table-and-wall", "speed": 1.0,
+                          "samples": 80_000})],
+    # the whole room: the iot-platform table, the ur10 behind its safety wall, lights and pan-tilts
+    "iot-lab": [ProcessSpec("iot-lab", "devices.lab_process:run", {"speed": 1.0, "samples": 80_000})],
 }
-DEFAULT_SCENE = "lights"
+DEFAULT_SCENE = "iot-lab"
 
 
-def scene_specs(name: str, speed: float | None = 1.0) -> list[ProcessSpec]:
-    """The processes of a scene; `speed` (None = as fast as possible) goes to every simulated world."""
+def scene_specs(name: str, speed: float | None = 1.0, samples: int | None = None) -> list[ProcessSpec]:
+    """The processes of a scene; `speed` (None = as fast as possible) goes to every simulated world,
+    `samples` (None = each robot's default) to every robot's workspace sampling."""
     if name not in SCENES:
         raise KeyError(f"unknown scene {name!r}; known scenes: {', '.join(sorted(SCENES))}")
-    return [ProcessSpec(s.name, s.target, {**s.kwargs, "speed": speed}) if "speed" in s.kwargs else s
-            for s in SCENES[name]]
+    specs = []
+    for s in SCENES[name]:
+        kwargs = dict(s.kwargs)
+        if "speed" in kwargs:
+            kwargs["speed"] = speed
+        if "samples" in kwargs and samples is not None:
+            kwargs["samples"] = samples
+        specs.append(ProcessSpec(s.name, s.target, kwargs))
+    return specs

@@ -16,50 +16,88 @@ and a file `scene.json` (a `SceneDescription`), plus each robot's URDF as a file
 - `reset` puts every cube back in the warehouse, the robots home, the belts stopped (motions under
   way are cancelled: their callers get a 503); `resetWarehouse {cubes: n}` does the same but leaves
   only the first n cubes of the queue in the warehouse and sets the others aside on the table, out
-  of every device's reach, as a lab assistant would (how a test or a class sets up an empty warehouse).
+  of every device's reach, as a lab assistant would (how a test or a class sets up an empty warehouse);
+- in a scene that takes obstacles (`ObstacleScene`: the iot-lab), `addObstacle` / `removeObstacle`
+  change the scene under the robots and the observable `obstacles` lists them; the TD is then
+  re-published with a new `version` (how the recorder knows to reload scene.json).
+
+The Thing works for any `SimulatedScene`: it asks the scene for its description, its robots'
+URDFs and its reset, and knows nothing of what is on the tables.
 """
 from __future__ import annotations
 
 import logging
 import threading
 import time
-from typing import Any, Callable
+from pathlib import Path
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import msgspec
-import pybullet as pb
 
-from devices.compensation import DOBOT_URDF, UARM_URDF
-from devices.platform import IotPlatform
-from devices.world import Snapshot, body_pose, place
+from devices.obstacles import OBSTACLE_SCHEMA, Obstacle
+from devices.scene_description import pose as _pose
+from devices.world import Snapshot, World
 from mesh.keys import Keys
-from mesh.scene_model import (POSES_PROPERTY, SCENE_FILE, WORLD_THING, Body, Pose, Poses, RobotModel,
-                              SceneDescription)
+from mesh.scene_model import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription
 from mesh.td import ThingDescription, decode_td, thing_id
 from mesh.thing import ExposedThing
 
 log = logging.getLogger(__name__)
 
-SCENE_NAME = "iot-platform"
 URDF_TYPE = "application/xml"
-ROBOT_URDFS = {"uarm": ("uarm.urdf", UARM_URDF), "dobot": ("dobot.urdf", DOBOT_URDF)}
 POSES_RATE = 20.0  # publications per wall second, at most
-# where resetWarehouse sets spare cubes aside: on the table left of conveyor belt 1, real uArm frame (mm)
-ASIDE_XY = [(x, y) for y in (-440.0, -490.0) for x in (380.0, 420.0, 460.0)]
 
 _OBJECT = {"type": "object"}
 
 
-def world_td(platform: IotPlatform) -> ThingDescription:
-    n = len(platform.cubes)
-    return decode_td({
+def urdf_file(robot: str) -> str:
+    """The world Thing's file name for a robot's URDF (what `RobotModel.urdf` names)."""
+    return f"{robot}.urdf"
+
+
+class SimulatedScene(Protocol):
+    """What the world Thing needs of a scene (`IotPlatform`, `IotLab`)."""
+
+    name: str
+    world: World
+
+    @property
+    def cube_count(self) -> int: ...
+
+    def robot_urdfs(self) -> dict[str, Path]: ...
+
+    def describe(self) -> SceneDescription: ...
+
+    def reset(self, cubes: int | None = None) -> None: ...
+
+
+@runtime_checkable
+class ObstacleScene(Protocol):
+    """A scene that takes box obstacles (the iot-lab): its robots see them in their checks and workspaces."""
+
+    def obstacles(self) -> list[Obstacle]: ...
+
+    def add_obstacle(self, obstacle: Obstacle) -> None: ...
+
+    def remove_obstacle(self, name: str) -> Obstacle: ...
+
+
+def world_td(scene: SimulatedScene, version: int = 0) -> ThingDescription:
+    n = scene.cube_count
+    takes_obstacles = isinstance(scene, ObstacleScene)
+    td: dict[str, Any] = {
         "title": WORLD_THING,
         "id": thing_id(WORLD_THING),
+        "version": {"instance": str(version)},
         "description": (
-            f"The simulated world of the {SCENE_NAME} scene (twinmesh). poses: what moves, published when "
+            f"The simulated world of the {scene.name} scene (twinmesh). poses: what moves, published when "
             "something changed, at most 20 times per wall second and always once more when a motion ends; "
             "joints per robot (rad or m), bodies: cubes and robot bases ([[x,y,z],[qx,qy,qz,qw]], m, scene frame; "
             "the Dobot's base moves along its track), states per device. Files: scene.json (the scene "
-            "description), the robots' URDFs (links rel=model, anchored at each robot's Thing)."),
+            "description), the robots' URDFs (links rel=model, anchored at each robot's Thing)."
+            + (" Box obstacles can be added and removed (addObstacle, removeObstacle); the robots then check "
+               "their moves against them at once and their workspaces and TDs are regenerated; this TD is "
+               "re-published with a new version so that observers reload scene.json." if takes_obstacles else "")),
         "properties": {
             POSES_PROPERTY: {
                 "title": "Poses", "type": "object", "readOnly": True, "observable": True,
@@ -87,14 +125,22 @@ def world_td(platform: IotPlatform) -> ThingDescription:
             },
         },
         "links": [{"rel": "scene", "href": f"files/{SCENE_FILE}", "type": "application/json"}]
-        + [{"rel": "model", "href": f"files/{name}", "type": URDF_TYPE, "anchor": thing_id(robot)}
-           for robot, (name, _) in ROBOT_URDFS.items()],
-    })
-
-
-def _pose(p: tuple) -> Pose:
-    pos, orn = p
-    return Pose(tuple(float(v) for v in pos), tuple(float(v) for v in orn))  # type: ignore[arg-type]
+        + [{"rel": "model", "href": f"files/{urdf_file(robot)}", "type": URDF_TYPE, "anchor": thing_id(robot)}
+           for robot in scene.robot_urdfs()],
+    }
+    if takes_obstacles:
+        td["properties"]["obstacles"] = {
+            "title": "Obstacles", "description": "The box obstacles added to the scene, in the order added.",
+            "type": "array", "items": OBSTACLE_SCHEMA, "readOnly": True, "observable": True}
+        td["actions"]["addObstacle"] = {
+            "title": "Add a box obstacle", "description": "A static box in the scene frame (m, yaw in deg). Refused "
+            "(422) if the name is taken or the box would enclose a robot where it stands now.",
+            "input": OBSTACLE_SCHEMA, "safe": False, "idempotent": False, "synchronous": True}
+        td["actions"]["removeObstacle"] = {
+            "title": "Remove an obstacle", "description": "Removes the obstacle of that name (422 if there is none).",
+            "input": {"type": "object", "required": ["name"], "properties": {"name": OBSTACLE_SCHEMA["properties"]["name"]}},
+            "output": OBSTACLE_SCHEMA, "safe": False, "idempotent": False, "synchronous": True}
+    return decode_td(td)
 
 
 def to_poses(snap: Snapshot) -> Poses:
@@ -124,31 +170,6 @@ def moved(a: Snapshot, b: Snapshot) -> bool:
         if min(same, flipped) > ORIENTATION_TOLERANCE:
             return True
     return False
-
-
-def scene_description(platform: IotPlatform) -> SceneDescription:
-    """Robots, static and moving bodies as they stand now (stepping thread, or before the world starts)."""
-    c = platform.world.client
-    named = dict(platform.fixtures)
-    for name, belt in platform.belts.items():
-        named[name] = belt.body
-        for i, stop in enumerate(belt.end_stops):
-            named[f"{name}-end-stop-{i + 1}"] = stop
-    for name, sensor in [*platform.infrared.items(), ("color-sensor", platform.color_sensor)]:
-        named[name] = sensor.body
-    bodies = [_box(c, name, body) for name, body in named.items()]
-    bodies += [_box(c, cube.name, cube.body, moving=True) for cube in platform.cubes]
-    robots = [RobotModel(name=robot, urdf=file, base=_pose(body_pose(c, platform.devices[robot].arm.body)))
-              for robot, (file, _) in ROBOT_URDFS.items()]
-    return SceneDescription(name=SCENE_NAME, robots=robots, bodies=bodies)
-
-
-def _box(client: int, name: str, body: int, moving: bool = False) -> Body:
-    shape = pb.getVisualShapeData(body, physicsClientId=client)[0]
-    if shape[2] != pb.GEOM_BOX:  # pragma: no cover - the platform is built of boxes
-        raise ValueError(f"{name}: only boxes are described")
-    return Body(name=name, shape="box", size=tuple(float(v) for v in shape[3]), pose=_pose(body_pose(client, body)),
-                color=tuple(float(v) for v in shape[7][:3]), moving=moving)  # type: ignore[arg-type]
 
 
 class Throttle:
@@ -193,23 +214,29 @@ class Throttle:
 
 
 class WorldThing:
-    """The `world` Thing of an `IotPlatform`; use as a context manager (exposes, then tears down)."""
+    """The `world` Thing of a simulated scene; use as a context manager (exposes, then tears down)."""
 
-    def __init__(self, session, platform: IotPlatform, keys: Keys | None = None, rate: float = POSES_RATE):
-        self.platform, self.world = platform, platform.world
-        self.thing = ExposedThing(session, world_td(platform), WORLD_THING, keys)
-        scene = msgspec.json.encode(self.world.run(lambda: scene_description(platform)))
+    def __init__(self, session, scene: SimulatedScene, keys: Keys | None = None, rate: float = POSES_RATE):
+        self.scene, self.world = scene, scene.world
+        self.version = 0
+        self.thing = ExposedThing(session, world_td(scene), WORLD_THING, keys)
+        self._scene_json = self._describe()
         t = self.thing
         t.on_read(POSES_PROPERTY, lambda: to_poses(self.world.snapshot()))
         t.on_read("simTime", lambda: self.world.time)
         t.on_read("speed", lambda: self.world.speed or 0.0).on_write("speed", self._set_speed)
         t.on_action("reset", lambda _: self.reset())
         t.on_action("resetWarehouse", lambda v: self.reset(v["cubes"]))
-        t.on_file(SCENE_FILE, lambda: scene, "application/json")
-        for name, path in ROBOT_URDFS.values():
-            t.on_file(name, lambda data=path.read_bytes(): data, URDF_TYPE)
+        t.on_file(SCENE_FILE, lambda: self._scene_json, "application/json")
+        for robot, path in scene.robot_urdfs().items():
+            t.on_file(urdf_file(robot), lambda data=path.read_bytes(): data, URDF_TYPE)
+        if isinstance(scene, ObstacleScene):
+            t.on_read("obstacles", scene.obstacles)
+            t.on_action("addObstacle", self._add_obstacle)
+            t.on_action("removeObstacle", self._remove_obstacle)
         self._published: Snapshot | None = None
         self._lock = threading.Lock()
+        self._changing = threading.Lock()  # one scene change at a time
         self._throttle = Throttle(lambda poses: t.emit_property_change(POSES_PROPERTY, poses), rate)
         self._unsubscribe: Callable[[], None] | None = None
 
@@ -225,6 +252,9 @@ class WorldThing:
             self._unsubscribe()
         self._throttle.close()
         self.thing.destroy()
+
+    def _describe(self) -> bytes:
+        return msgspec.json.encode(self.world.run(self.scene.describe))
 
     def _fill(self, snap: Snapshot) -> None:  # stepping thread: a snapshot source
         snap.states[WORLD_THING] = {"idle": self.world.idle(), "speed": self.world.speed or 0.0}
@@ -244,16 +274,26 @@ class WorldThing:
 
     def reset(self, cubes: int | None = None) -> None:
         """The scene as it started; with `cubes`, only that many left in the warehouse queue."""
-        self.platform.reset()
-        if cubes is not None:
-            self.world.run(lambda: self._set_aside(cubes))
+        self.scene.reset(cubes)
         self._snapshot(self.world.snapshot(), force=True)
 
-    def _set_aside(self, keep: int) -> None:  # stepping thread
-        p = self.platform
-        queue = p.warehouse.queue
-        p.warehouse.queue, aside = queue[:keep], queue[keep:]
-        for cube, (x, y) in zip(aside, ASIDE_XY):
-            place(self.world.client, cube.body, p.w(x, y, cube.size * 500.0))
-        for sensor in p.infrared.values():
-            sensor.refresh()
+    # --- obstacles (an ObstacleScene) -----------------------------------------------------------
+    def _add_obstacle(self, value: dict) -> None:
+        from devices.obstacles import from_input
+
+        with self._changing:
+            self.scene.add_obstacle(from_input(value))  # type: ignore[attr-defined]
+            self._scene_changed()
+
+    def _remove_obstacle(self, value: dict) -> Obstacle:
+        with self._changing:
+            gone = self.scene.remove_obstacle(value["name"])  # type: ignore[attr-defined]
+            self._scene_changed()
+            return gone
+
+    def _scene_changed(self) -> None:
+        """New scene.json, the TD re-published with a new version (the recorder redraws), obstacles out."""
+        self._scene_json = self._describe()
+        self.version += 1
+        self.thing.update_td(world_td(self.scene, self.version))
+        self.thing.emit_property_change("obstacles", self.scene.obstacles())  # type: ignore[attr-defined]

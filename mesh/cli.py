@@ -90,19 +90,22 @@ def _host_port(value: str) -> tuple[str, int]:
 @click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS", help=AUTH_HELP)
 @click.option("--record", type=click.Path(dir_okay=False), help="Also record the lab to this .rrd file.")
 @click.option("--speed", default="1", show_default=True, help="Simulation speed factor, or 'max'.")
+@click.option("--samples", type=click.IntRange(min=100), metavar="N",
+              help="Random configurations each robot's workspace is sampled with [default: 80000; fewer start "
+                   "faster, e.g. for a class on small machines].")
 @click.option("--tdgen-cache", type=click.Path(file_okay=False),
               help="Where the tdgen service caches generated robot TDs [default: $TWINMESH_CACHE/tdgen, "
                    "else ~/.cache/twinmesh/tdgen].")
 @click.pass_obj
 def up(settings: MeshSettings, scene: str | None, http: str, no_http: bool, auth: str | None, record: str | None,
-       speed: str, tdgen_cache: str | None) -> None:
+       speed: str, samples: int | None, tdgen_cache: str | None) -> None:
     """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
     Ctrl-C stops it all."""
     from devices.scenes import DEFAULT_SCENE, scene_specs
     from tdgen.service import default_cache_dir
 
     try:
-        specs = scene_specs(scene or DEFAULT_SCENE, speed=_speed(speed))
+        specs = scene_specs(scene or DEFAULT_SCENE, speed=_speed(speed), samples=samples)
     except KeyError as e:
         raise click.ClickException(str(e.args[0])) from None
     router = ProcessSpec("router", "mesh.session:run_router_process",

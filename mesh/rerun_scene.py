@@ -223,7 +223,7 @@ class SceneDrawer:
 
     def _draw_body(self, body: Body, wall: float, seq: int) -> None:
         path = body_path(body.name)
-        color = [round(min(max(c, 0.0), 1.0) * 255) for c in body.color]
+        color = [round(min(max(c, 0.0), 1.0) * 255) for c in (*body.color, body.opacity)]
         if body.shape == "box":
             shape = rr.Boxes3D(half_sizes=[[s / 2 for s in body.size]], colors=[color], fill_mode="solid")
         elif body.shape == "cylinder":

@@ -39,6 +39,7 @@ class Body(msgspec.Struct, omit_defaults=True):
     size: tuple[float, ...]       # box: full extents (m); cylinder: (radius, length); sphere: (radius,)
     pose: Pose
     color: tuple[float, float, float] = (0.6, 0.6, 0.6)  # sRGB 0..1
+    opacity: float = 1.0          # 0..1; below 1 for virtual bodies (a safety wall) drawn see-through
     moving: bool = False
 
 

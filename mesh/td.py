@@ -36,6 +36,7 @@ class DataSchema(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type"}
     exclusiveMaximum: float | None = None
     minLength: int | None = None
     maxLength: int | None = None
+    pattern: str | None = None
     minItems: int | None = None
     maxItems: int | None = None
     items: "DataSchema | None" = None

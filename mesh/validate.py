@@ -1,12 +1,13 @@
 """Input validation against an affordance's data schema, before anything reaches a device.
 
 Covers the JSON Schema keywords TDs use (type, const, enum, minimum/maximum, exclusive bounds,
-lengths, items, properties/required). A violation raises `BadInput` naming the path, e.g.
+lengths, pattern, items, properties/required). A violation raises `BadInput` naming the path, e.g.
 `input.x: 250 is above the maximum 200`.
 """
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 from mesh.problem import BadInput
@@ -51,6 +52,8 @@ def validate(value: Any, schema: DataSchema | None, path: str = "input") -> None
             raise BadInput(f"{path}: shorter than {schema.minLength} characters")
         if schema.maxLength is not None and len(value) > schema.maxLength:
             raise BadInput(f"{path}: longer than {schema.maxLength} characters")
+        if schema.pattern is not None and not re.search(schema.pattern, value):
+            raise BadInput(f"{path}: {_show(value)} does not match the pattern {schema.pattern}")
     if isinstance(value, list):
         if schema.minItems is not None and len(value) < schema.minItems:
             raise BadInput(f"{path}: needs at least {schema.minItems} items, got {len(value)}")

@@ -108,13 +108,13 @@ def stop_process(p: subprocess.Popen, timeout: float = 15.0) -> bool:
         return False
 
 
-def start_lab(tmp: Path, scene: str = "lights", http: bool = True, things: set[str] | None = None,
+def start_lab(tmp: Path, scene: str | None = "lights", http: bool = True, things: set[str] | None = None,
               extra_args: tuple[str, ...] = ()) -> Lab:
-    """Start `twinmesh up SCENE` on free ports and wait until it serves."""
+    """Start `twinmesh up SCENE` (None: `twinmesh up`, the default scene) on free ports and wait until it serves."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     port = free_port()
-    args = ["up", scene, *extra_args] + (["--http", f"127.0.0.1:{port}"] if http else ["--no-http"])
-    log = tmp / f"lab-{scene}.log"
+    args = ["up", *([scene] if scene else []), *extra_args] + (["--http", f"127.0.0.1:{port}"] if http else ["--no-http"])
+    log = tmp / f"lab-{scene or 'default'}.log"
     proc = subprocess.Popen(twinmesh_cmd(endpoint, *args), stdout=open(log, "wb"), stderr=subprocess.STDOUT,
                             cwd=REPO, start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lab = Lab(endpoint, f"http://127.0.0.1:{port}" if http else None, proc, log)

@@ -247,9 +247,12 @@ def test_the_ur10_scene_runs_the_generic_robot_at_the_lab_speed():
     from devices.scenes import scene_specs
     from mesh.processes import resolve
 
-    (spec,) = scene_specs("ur10", speed=None)
-    assert spec.kwargs == {"urdf": "ur10.urdf", "name": "ur10", "scene": "table-and-wall", "speed": None}
+    (spec,) = scene_specs("ur10", speed=None, samples=5000)
+    assert spec.kwargs == {"urdf": "ur10.urdf", "name": "ur10", "scene": "table-and-wall", "speed": None,
+                           "samples": 5000}
     assert callable(resolve(spec.target))
+    (lab,) = scene_specs("iot-lab", speed=2.0)
+    assert lab.kwargs == {"speed": 2.0, "samples": 80_000} and callable(resolve(lab.target))
 
 
 def test_a_calibrated_robot_gets_its_td_checks_and_moves_in_the_real_frame_from_the_service(mesh, world, ur10, scene,
