@@ -173,26 +173,46 @@ def moved(a: Snapshot, b: Snapshot) -> bool:
 
 
 class Throttle:
-    """Publishes the latest offered value at most `rate` times per wall second, never dropping the last."""
+    """Publishes the latest offered value at most `rate` times per wall second, never dropping the last.
+
+    `flush(value)` publishes at once, in the caller's thread (an action publishes the state it
+    leaves before it replies, which the HTTP adapter's cache relies on); a value offered earlier
+    is never published after a newer one.
+    """
 
     def __init__(self, publish: Callable[[Any], None], rate: float = POSES_RATE):
         self._publish, self._period = publish, 1.0 / rate
-        self._latest: Any = None
+        self._latest: tuple[int, Any] | None = None
+        self._seq = self._sent = 0
         self._dirty = threading.Event()
         self._stop = threading.Event()
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()       # _latest and _seq
+        self._sending = threading.Lock()    # one publication at a time, in order
         self._thread = threading.Thread(target=self._loop, name="poses-throttle", daemon=True)
         self._thread.start()
 
     def offer(self, value: Any) -> None:
         with self._lock:
-            self._latest = value
+            self._seq += 1
+            self._latest = (self._seq, value)
         self._dirty.set()
+
+    def flush(self, value: Any) -> None:
+        with self._lock:
+            self._seq += 1
+            item, self._latest = (self._seq, value), None
+        self._send(item)
 
     def close(self) -> None:
         self._stop.set()
         self._dirty.set()
         self._thread.join(timeout=2)
+
+    def _send(self, item: tuple[int, Any]) -> None:
+        with self._sending:
+            if item[0] > self._sent:
+                self._sent = item[0]
+                self._publish(item[1])
 
     def _loop(self) -> None:
         while True:
@@ -201,10 +221,12 @@ class Throttle:
                 return
             self._dirty.clear()
             with self._lock:
-                value = self._latest
+                item, self._latest = self._latest, None
+            if item is None:
+                continue
             started = time.monotonic()
             try:
-                self._publish(value)
+                self._send(item)
             except Exception:  # keep publishing later values (a closing session ends the loop below)
                 if self._stop.is_set():
                     return
@@ -259,14 +281,14 @@ class WorldThing:
     def _fill(self, snap: Snapshot) -> None:  # stepping thread: a snapshot source
         snap.states[WORLD_THING] = {"idle": self.world.idle(), "speed": self.world.speed or 0.0}
 
-    def _snapshot(self, snap: Snapshot, force: bool = False) -> None:  # mostly the world's notifier thread
-        """Publish what moved. The snapshot in which the world turns idle differs in its state, so the
-        exact final state of a motion always goes out."""
+    def _snapshot(self, snap: Snapshot, now: bool = False) -> None:  # mostly the world's notifier thread
+        """Publish what moved (throttled; `now`: at once, whatever moved). The snapshot in which the world
+        turns idle differs in its state, so the exact final state of a motion always goes out."""
         with self._lock:
-            if self._published is not None and not force and not moved(self._published, snap):
+            if self._published is not None and not now and not moved(self._published, snap):
                 return
             self._published = snap
-            self._throttle.offer(to_poses(snap))
+            (self._throttle.flush if now else self._throttle.offer)(to_poses(snap))  # in order
 
     def _set_speed(self, value: float) -> None:
         self.world.speed = None if value == 0 else float(value)
@@ -275,7 +297,7 @@ class WorldThing:
     def reset(self, cubes: int | None = None) -> None:
         """The scene as it started; with `cubes`, only that many left in the warehouse queue."""
         self.scene.reset(cubes)
-        self._snapshot(self.world.snapshot(), force=True)
+        self._snapshot(self.world.snapshot(), now=True)  # published before the reply
 
     # --- obstacles (an ObstacleScene) -----------------------------------------------------------
     def _add_obstacle(self, value: dict) -> None:
@@ -297,3 +319,4 @@ class WorldThing:
         self.version += 1
         self.thing.update_td(world_td(self.scene, self.version))
         self.thing.emit_property_change("obstacles", self.scene.obstacles())  # type: ignore[attr-defined]
+        self._snapshot(self.world.snapshot(), now=True)

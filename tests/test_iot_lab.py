@@ -266,3 +266,12 @@ def test_a_pan_tilt_refuses_angles_out_of_range_and_pans_until_stopped(lab, http
     while http.get("/pan-tilt-2/properties/panPosition").json() != 90 and time.monotonic() < deadline:
         time.sleep(0.05)
     assert http.get("/pan-tilt-2/properties/panPosition").json() == 90  # stopped at the limit
+
+
+def test_the_cube_workflow_runs_unchanged_on_the_platform_table_in_the_room(lab, http):
+    run = lab.cli("workflow", "cube", "--via", lab.http, timeout=300)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "the cube is red [" in run.stdout  # the first cube of the queue, read by the colour sensor
+    (x, y, z), _ = http.get("/world/properties/poses").json()["bodies"]["cube-red"]
+    # back in the warehouse tray (x = 640 mm in the uArm frame, whose origin is at x = -0.375 m), on the table
+    assert abs(x - (-0.375 + 0.640)) < 0.03 and abs(y) < 0.13 and 0.75 < z < 0.8
