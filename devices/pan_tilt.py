@@ -93,7 +93,8 @@ class PanTilt:
     """One pan-tilt unit in a World (scene frame position of the base's bottom, m; yaw about z, deg).
 
     `names`: pybullet body id -> name for what the camera sees (a mapping, or a function returning
-    one, called on the stepping thread); bodies not in it go by their pybullet name, else `body-<id>`.
+    one, called on the stepping thread); bodies not in it go by their pybullet body name (a URDF's robot
+    name), else `body-<id>`.
     Thread-safe: one motion at a time; reads never wait for a motion.
     """
 
@@ -112,8 +113,8 @@ class PanTilt:
         self.arm: KinematicArm = world.run(load)  # before start() this runs here, after on the stepping thread
         self.body = self.arm.body
         self._camera = self.arm.link_index[CAMERA_LINK]
-        self._panning: _ContinuousPan | None = None
-        self._panning_done: Future | None = None
+        self._pan: tuple[_ContinuousPan, Future] | None = None  # the continuous pan under way
+        self._pan_lock = threading.Lock()  # its end (stepping thread) vs. a new one (caller)
         self._seen = NOTHING
         self._since = SENSE_PERIOD  # look at the first step
         self._listeners: list[Callable[[ColorSeen], None]] = []
@@ -144,8 +145,8 @@ class PanTilt:
     @property
     def panning(self) -> float:
         """The continuous pan's speed (deg/s), 0 when none runs."""
-        p = self._panning
-        return p.speed if p is not None else 0.0
+        pan = self._pan
+        return pan[0].speed if pan is not None else 0.0
 
     def color(self) -> ColorSeen:
         """What the camera sees now (a fresh look)."""
@@ -200,30 +201,32 @@ class PanTilt:
             if speed == 0:
                 return
             motion = _ContinuousPan(self, speed)
-            self._panning = motion
-            self._panning_done = done = self.world.play(motion)
-            done.add_done_callback(lambda _: self._ended(motion))
+            done = self.world.play(motion)
+            with self._pan_lock:
+                self._pan = (motion, done)
+            done.add_done_callback(lambda _: self._ended(motion))  # at once if it is over already
 
     def stop_movement(self) -> None:
         """Stop a continuous pan where it is (no-op without one); returns once it stands still."""
-        motion, done = self._panning, self._panning_done
-        if motion is None:
+        pan = self._pan
+        if pan is None:
             return
+        motion, done = pan
         motion.stopped = True
-        if done is not None:
-            try:
-                done.result()  # the motion has seen the flag: the pan stands still
-            except MotionCancelled:
-                pass
+        try:
+            done.result()  # the motion has seen the flag: the pan stands still
+        except MotionCancelled:
+            pass
         self._ended(motion)
 
     def reset(self) -> None:
         """Home at once, no pan (a scene reset; the world cancels the motions under way first)."""
         with self.lock:
-            if self._panning is not None:
-                self._panning.stopped = True
-                self._panning = None
-            self.world.run(lambda: (self._apply(np.zeros(len(JOINTS))), self._refresh()))
+            with self._pan_lock:  # never held while waiting on the stepping thread: it takes it too
+                pan, self._pan = self._pan, None
+            if pan is not None:
+                pan[0].stopped = True
+            self.world.run(self._home_now)
 
     def _move(self, targets: dict[str, float]) -> None:
         goal_of: dict[str, float] = {}
@@ -245,14 +248,19 @@ class PanTilt:
             self.world.run(self._refresh)  # what the camera sees now, heard before the reply
 
     def _ended(self, motion: _ContinuousPan) -> None:
-        if self._panning is motion:
-            self._panning = None
+        with self._pan_lock:
+            if self._pan is not None and self._pan[0] is motion:
+                self._pan = None
 
     # --- stepping thread ------------------------------------------------------------------------
     def _apply(self, angles_deg: np.ndarray) -> None:
         self.arm.apply(np.radians(angles_deg))
         for listener in list(self._move_listeners):
             listener()
+
+    def _home_now(self) -> None:
+        self._apply(np.zeros(len(JOINTS)))
+        self._refresh()
 
     def _look(self) -> ColorSeen:
         c = self.world.client
@@ -273,8 +281,7 @@ class PanTilt:
         names = self._names() if callable(self._names) else self._names
         if names and body in names:
             return names[body]
-        info = pb.getBodyInfo(body, physicsClientId=self.world.client)
-        return (info[1] or info[0]).decode() or f"body-{body}"
+        return pb.getBodyInfo(body, physicsClientId=self.world.client)[1].decode() or f"body-{body}"
 
     def _refresh(self) -> None:
         """Look now; tell the listeners if what is seen changed."""
