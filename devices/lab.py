@@ -30,7 +30,7 @@ from devices.pan_tilt import PAN_TILT_URDF, PanTilt
 from devices.platform import IotPlatform
 from devices.robot import Base, RobotTwin
 from devices.scene_description import box, pose
-from devices.world import DEFAULT_DT, Snapshot, World, static_box
+from devices.world import DEFAULT_DT, Snapshot, World, body_pose, static_box
 from mesh.problem import Refused
 from mesh.scene_model import Body, RobotModel, SceneDescription
 from tdgen.robot import Robot
@@ -130,6 +130,7 @@ class IotLab:
         self.ur10 = RobotTwin(world, Robot.load("ur10.urdf"), "ur10", Base((x, y, z), yaw), self._base_scene,
                               max_collision_probability=max_collision_probability)
         self._obstacles: dict[str, tuple[Obstacle, int]] = {}
+        self._names: dict[int, str] | None = None
         self._lock = threading.Lock()
         for lamp in self.lamps.values():
             world.add_snapshot_source(lamp.fill)
@@ -152,8 +153,8 @@ class IotLab:
             bodies += [box(c, f"{lamp.name}-post", lamp.post), box(c, f"{lamp.name}-shade", lamp.shade)]
         bodies += [box(c, o.body_name, body) for o, body in self._obstacles.values()]
         robots = [RobotModel(name="ur10", urdf="ur10.urdf", base=self.ur10.base.pose())]
-        robots += [RobotModel(name=name, urdf=f"{name}.urdf", base=pose(pb.getBasePositionAndOrientation(
-            unit.body, physicsClientId=c))) for name, unit in self.pan_tilts.items()]
+        robots += [RobotModel(name=name, urdf=f"{name}.urdf", base=pose(body_pose(c, unit.body)))
+                   for name, unit in self.pan_tilts.items()]
         return SceneDescription(name=self.name, robots=platform.robots + robots, bodies=platform.bodies + bodies)
 
     def reset(self, cubes: int | None = None) -> None:
@@ -168,7 +169,14 @@ class IotLab:
         self.world.close()
 
     def body_names(self) -> dict[int, str]:
-        """pybullet body id -> name, for what the pan-tilts' colour sensors report seeing."""
+        """pybullet body id -> name, for what the pan-tilts' colour sensors report seeing (kept until an
+        obstacle comes or goes: the sensors ask on every look)."""
+        names = self._names
+        if names is None:
+            names = self._names = self._all_body_names()
+        return names
+
+    def _all_body_names(self) -> dict[int, str]:
         names = {body: name for name, body in self.fixtures.items()}
         names.update({body: name for name, body in self.platform.fixtures.items()})
         names.update({cube.body: cube.name for cube in self.platform.cubes})
@@ -203,6 +211,7 @@ class IotLab:
                               "away first or put the box elsewhere", reason="obstacle-hits-robot")
             body = self.world.run(lambda: build(self.world.client, obstacle))
             self._obstacles[obstacle.name] = (obstacle, body)
+            self._names = None
             self.ur10.set_scene(self.robot_scene())
 
     def remove_obstacle(self, name: str) -> Obstacle:
@@ -211,6 +220,7 @@ class IotLab:
                 known = ", ".join(self._obstacles) or "none"
                 raise Refused(f"no obstacle named {name!r} (obstacles: {known})", reason="no-such-obstacle")
             obstacle, body = self._obstacles.pop(name)
+            self._names = None
             self.world.run(lambda: pb.removeBody(body, physicsClientId=self.world.client))
             self.ur10.set_scene(self.robot_scene())
             return obstacle

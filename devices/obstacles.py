@@ -12,6 +12,7 @@ import math
 import msgspec
 import pybullet as pb
 
+from devices.world import static_box
 from tdgen.scene import BoxBody
 
 PREFIX = "obstacle-"  # the body name of obstacle `name` in the scene: obstacle-<name>
@@ -58,9 +59,5 @@ def scene_body(obstacle: Obstacle) -> BoxBody:
 
 def build(client: int, obstacle: Obstacle) -> int:
     """The obstacle as a static box in pybullet client `client` (stepping thread); returns its body id."""
-    half = [s / 2 for s in obstacle.size]
     orn = pb.getQuaternionFromEuler([0.0, 0.0, math.radians(obstacle.yaw)])
-    col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=client)
-    vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=[*obstacle.color, 1.0],
-                               physicsClientId=client)
-    return pb.createMultiBody(0, col, vis, list(obstacle.position), orn, physicsClientId=client)
+    return static_box(client, [s / 2 for s in obstacle.size], obstacle.position, orn, rgba=(*obstacle.color, 1.0))

@@ -16,6 +16,7 @@ belts' far ends, slot 0 next to the right belt.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -133,7 +134,7 @@ class IotPlatform:
     def cube_count(self) -> int:
         return len(self.cubes)
 
-    def robot_urdfs(self) -> dict[str, Any]:
+    def robot_urdfs(self) -> dict[str, Path]:
         """Robot (Thing name) -> its URDF file; the world Thing serves it as `<robot>.urdf`."""
         return {"uarm": UARM_URDF, "dobot": DOBOT_URDF}
 

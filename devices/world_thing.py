@@ -252,6 +252,7 @@ class WorldThing:
         t.on_file(SCENE_FILE, lambda: self._scene_json, "application/json")
         for robot, path in scene.robot_urdfs().items():
             t.on_file(urdf_file(robot), lambda data=path.read_bytes(): data, URDF_TYPE)
+        self._obstacles: ObstacleScene | None = scene if isinstance(scene, ObstacleScene) else None
         if isinstance(scene, ObstacleScene):
             t.on_read("obstacles", scene.obstacles)
             t.on_action("addObstacle", self._add_obstacle)
@@ -304,19 +305,23 @@ class WorldThing:
         from devices.obstacles import from_input
 
         with self._changing:
-            self.scene.add_obstacle(from_input(value))  # type: ignore[attr-defined]
+            self._obstacle_scene().add_obstacle(from_input(value))
             self._scene_changed()
 
     def _remove_obstacle(self, value: dict) -> Obstacle:
         with self._changing:
-            gone = self.scene.remove_obstacle(value["name"])  # type: ignore[attr-defined]
+            gone = self._obstacle_scene().remove_obstacle(value["name"])
             self._scene_changed()
             return gone
+
+    def _obstacle_scene(self) -> ObstacleScene:
+        assert self._obstacles is not None  # the obstacle actions exist only for an ObstacleScene
+        return self._obstacles
 
     def _scene_changed(self) -> None:
         """New scene.json, the TD re-published with a new version (the recorder redraws), obstacles out."""
         self._scene_json = self._describe()
         self.version += 1
         self.thing.update_td(world_td(self.scene, self.version))
-        self.thing.emit_property_change("obstacles", self.scene.obstacles())  # type: ignore[attr-defined]
+        self.thing.emit_property_change("obstacles", self._obstacle_scene().obstacles())
         self._snapshot(self.world.snapshot(), now=True)
