@@ -3,8 +3,8 @@
 `twinmesh eval ik --thing NAME --targets CSV [--via URL] [--out CSV]` drives a robot Thing to each
 target (mm, in its TD's frame) with `moveToCartesianPosition`, then reads `getCartesianposition` and
 `getJointposition`, and writes one row per target: the target, `reached` or `refused`, where the end
-effector is, the error (mm, reached targets only), the refusal reason and the joint values; then
-the mean and max error. Only the affordance names of SPEC §4 are used, so the same command measures
+effector is, the error (mm) and the joint values (reached targets only: a refused target leaves
+those columns empty, since nothing moved), the refusal reason; then the mean and max error. Only the affordance names of SPEC §4 are used, so the same command measures
 any robot Thing that has them, twin or not.
 """
 from __future__ import annotations
@@ -71,15 +71,17 @@ def evaluate_ik(c: Consumer, thing: str, targets: list[tuple[float, float, float
             if p.status >= 500 and p.status != 503:
                 raise
             status, reason, detail = "refused", p.reason or p.slug, p.detail
+        if status == "refused":  # nothing moved: the pose is the previous target's, not this one's
+            rows.append(IkRow(target, status, None, None, reason, detail))
+            continue
         where = c.read(thing, WHERE)
         reached = (float(where["x"]), float(where["y"]), float(where["z"]))
-        error = math.dist(reached, target) if status == "reached" else None
-        rows.append(IkRow(target, status, reached, error, reason, detail, c.read(thing, JOINTS)))
+        rows.append(IkRow(target, status, reached, math.dist(reached, target), reason, detail, c.read(thing, JOINTS)))
     return rows
 
 
 def write_table(rows: list[IkRow], out) -> None:
-    joints = list(rows[0].joints) if rows else []
+    joints = next((list(r.joints) for r in rows if r.joints), [])
     w = csv.writer(out)
     w.writerow(["target_x", "target_y", "target_z", "status", "reached_x", "reached_y", "reached_z", "error_mm",
                 "reason", *joints])
@@ -87,7 +89,7 @@ def write_table(rows: list[IkRow], out) -> None:
         reached = [f"{v:.4f}" for v in r.reached] if r.reached else ["", "", ""]
         w.writerow([*(f"{v:g}" for v in r.target), r.status, *reached,
                     "" if r.error_mm is None else f"{r.error_mm:.6f}", r.reason,
-                    *(f"{r.joints.get(j, float('nan')):.6f}" for j in joints)])
+                    *(f"{r.joints[j]:.6f}" if j in r.joints else "" for j in joints)])
 
 
 def summary(rows: list[IkRow]) -> str:

@@ -28,7 +28,7 @@ import pybullet as pb
 from devices.obstacles import Obstacle, build, scene_body
 from devices.pan_tilt import PAN_TILT_URDF, PanTilt
 from devices.platform import IotPlatform
-from devices.robot import Base, RobotTwin
+from devices.robot import WORKSPACE_WAIT, Base, RobotTwin
 from devices.scene_description import box, pose
 from devices.world import DEFAULT_DT, Snapshot, World, body_pose, static_box
 from mesh.problem import Refused
@@ -111,7 +111,7 @@ class IotLab:
 
     name = "iot-lab"
 
-    def __init__(self, world: World, layout: LabLayout = LAB, *, max_collision_probability: float = 0.5):
+    def __init__(self, world: World, layout: LabLayout = LAB, *, max_collision_probability: float | None = None):
         self.world, self.layout = world, layout
         c = world.client
         self.fixtures: dict[str, int] = {}
@@ -128,7 +128,7 @@ class IotLab:
                           for name, x in layout.pan_tilts}
         x, y, z, yaw = layout.ur10_base
         self.ur10 = RobotTwin(world, Robot.load("ur10.urdf"), "ur10", Base((x, y, z), yaw), self._base_scene,
-                              max_collision_probability=max_collision_probability)
+                              max_collision_probability=max_collision_probability, workspace_wait=WORKSPACE_WAIT)
         self._obstacles: dict[str, tuple[Obstacle, int]] = {}
         self._names: dict[int, str] | None = None
         self._lock = threading.Lock()
@@ -253,7 +253,7 @@ class IotLab:
 
 
 def build_lab(*, speed: float | None = 1.0, dt: float = DEFAULT_DT, snapshot_hz: float = 30.0,
-              max_collision_probability: float = 0.5, start: bool = True) -> IotLab:
+              max_collision_probability: float | None = None, start: bool = True) -> IotLab:
     """A new world with the iot-lab in it, stepping (`start=True`) at `speed` (None: as fast as possible)."""
     world = World(dt=dt, speed=speed, snapshot_hz=snapshot_hz)
     try:

@@ -88,6 +88,38 @@ class Interpolation:
         return u >= 1.0
 
 
+class PathMotion:
+    """Through joint-space waypoints, each segment eased in and out (smoothstep: it stops at every
+    waypoint, so it never leaves the straight segments a planner checked), in the durations given.
+    `stop()` halts it where it is at the next step; `stopped` then says so."""
+
+    def __init__(self, waypoints: np.ndarray, durations: Sequence[float], apply: Callable[[np.ndarray], None]):
+        self.waypoints, self.durations, self._apply = np.asarray(waypoints, float), list(durations), apply
+        self._segment, self._t = 0, 0.0
+        self.stopped = False
+        self._stop = threading.Event()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def advance(self, dt: float) -> bool:
+        if self._stop.is_set():
+            self.stopped = True
+            return True
+        self._t += dt
+        while self._segment < len(self.durations):
+            d = self.durations[self._segment]
+            if self._t < d:
+                u = self._t / d
+                a, b = self.waypoints[self._segment], self.waypoints[self._segment + 1]
+                self._apply(a + (b - a) * (u * u * (3.0 - 2.0 * u)))
+                return False
+            self._t -= d
+            self._segment += 1
+        self._apply(self.waypoints[-1])
+        return True
+
+
 class Delay:
     """Nothing happens for `duration` simulated seconds (lets a caller wait on simulated time)."""
 

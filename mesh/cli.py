@@ -12,7 +12,7 @@ import msgspec
 
 from mesh.consumer import NOTHING, MeshClient
 from mesh.problem import Problem
-from mesh.processes import ProcessSpec, Supervisor
+from mesh.processes import ProcessSpec, Supervisor, set_title
 from mesh.settings import DEFAULT_ENDPOINT, MeshSettings
 
 ADAPTER = "mesh.http.server:run"
@@ -39,18 +39,32 @@ class LazyGroup(click.Group):
         if name in self.lazy:
             from mesh.processes import resolve
 
-            return resolve(self.lazy[name])
-        return super().get_command(ctx, name)
+            cmd = resolve(self.lazy[name])
+        else:
+            cmd = super().get_command(ctx, name)
+        if cmd is not None and name in LAB_COMMANDS and CONNECT_NOTE not in (cmd.epilog or ""):
+            cmd.epilog = f"{cmd.epilog}\n\n{CONNECT_NOTE}" if cmd.epilog else CONNECT_NOTE
+        return cmd
+
+
+# commands that talk to a running lab: their help says where they find it
+LAB_COMMANDS = {"things", "td", "read", "write", "invoke", "observe", "subscribe", "wait", "workflow", "eval",
+                "robot", "record", "adapter", "plan"}
+CONNECT_NOTE = ("The lab: --connect ENDPOINT before the command (twinmesh --connect tcp/HOST:PORT COMMAND ...), "
+                f"or the environment variable TWINMESH_CONNECT; default {DEFAULT_ENDPOINT}.")
 
 
 @click.group(cls=LazyGroup, context_settings={"auto_envvar_prefix": "TWINMESH", "help_option_names": ["-h", "--help"]})
-@click.option("--prefix", default="wot", show_default=True, help="Key-expression prefix of the lab.")
-@click.option("--connect", multiple=True, metavar="ENDPOINT",
-              help=f"Zenoh endpoint to connect to (repeatable) [default: {DEFAULT_ENDPOINT}].")
-@click.option("--listen", multiple=True, metavar="ENDPOINT", help="Zenoh endpoint to listen on (repeatable).")
-@click.option("--mode", type=click.Choice(["peer", "client", "router"]),
+@click.option("--prefix", default="wot", show_default=True, show_envvar=True, help="Key-expression prefix of the lab.")
+@click.option("--connect", multiple=True, metavar="ENDPOINT", show_envvar=True,
+              help=f"Zenoh endpoint of the lab to connect to (repeatable; in the variable, space-separated) "
+                   f"[default: {DEFAULT_ENDPOINT}].")
+@click.option("--listen", multiple=True, metavar="ENDPOINT", show_envvar=True,
+              help="Zenoh endpoint to listen on (repeatable).")
+@click.option("--mode", type=click.Choice(["peer", "client", "router"]), show_envvar=True,
               help="Zenoh mode [default: peer for devices and services, client for one-shot commands].")
-@click.option("--multicast/--no-multicast", default=False, show_default=True, help="Multicast scouting.")
+@click.option("--multicast/--no-multicast", default=False, show_default=True, show_envvar=True,
+              help="Multicast scouting.")
 @click.option("-v", "--verbose", count=True, help="More logging (-vv for debug).")
 @click.pass_context
 def main(ctx: click.Context, prefix, connect, listen, mode, multicast, verbose) -> None:
@@ -83,8 +97,14 @@ def _host_port(value: str) -> tuple[str, int]:
 
 
 # --- running a lab ----------------------------------------------------------------------------
+READY_TIMEOUT = 600.0  # s `up` waits for every Thing of its scene before it gives up
+
+
 @main.command()
 @click.argument("scene", required=False)
+@click.option("--zenoh", "zenoh_endpoint", metavar="ENDPOINT",
+              help="Zenoh endpoint of the lab's router: it listens there and every process of the lab connects "
+                   f"there [default: the global --connect, env TWINMESH_CONNECT, else {DEFAULT_ENDPOINT}].")
 @click.option("--http", "http", default="127.0.0.1:8080", show_default=True, help="Adapter address HOST:PORT.")
 @click.option("--no-http", is_flag=True, help="Do not start the HTTP adapter.")
 @click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS", help=AUTH_HELP)
@@ -97,30 +117,96 @@ def _host_port(value: str) -> tuple[str, int]:
               help="Where the tdgen service caches generated robot TDs [default: $TWINMESH_CACHE/tdgen, "
                    "else ~/.cache/twinmesh/tdgen].")
 @click.pass_obj
-def up(settings: MeshSettings, scene: str | None, http: str, no_http: bool, auth: str | None, record: str | None,
-       speed: str, samples: int | None, tdgen_cache: str | None) -> None:
+def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, http: str, no_http: bool,
+       auth: str | None, record: str | None, speed: str, samples: int | None, tdgen_cache: str | None) -> None:
     """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
-    Ctrl-C stops it all."""
-    from devices.scenes import DEFAULT_SCENE, scene_specs
-    from tdgen.service import default_cache_dir
 
+    Prints one line with the word `ready` once every Thing answers (scripts: `twinmesh wait`).
+    Ctrl-C stops it all."""
+    from devices.scenes import DEFAULT_SCENE, scene_specs, scene_things
+    from mesh.lab import LabDied, LabStatus, PortTaken, free_or_problem, serve_status, wait_ready
+    from tdgen.service import THING as TDGEN_THING, default_cache_dir
+
+    scene = scene or DEFAULT_SCENE
     try:
-        specs = scene_specs(scene or DEFAULT_SCENE, speed=_speed(speed), samples=samples)
+        specs = scene_specs(scene, speed=_speed(speed), samples=samples)
+        things = [TDGEN_THING, *scene_things(scene)]
     except KeyError as e:
         raise click.ClickException(str(e.args[0])) from None
-    router = ProcessSpec("router", "mesh.session:run_router_process",
-                         {"listen": list(settings.listen) + [e for e in settings.connect if e not in settings.listen]})
+    if zenoh_endpoint:
+        settings = msgspec.structs.replace(settings, connect=(zenoh_endpoint,))
+    address = None if no_http else _host_port(http)
+    auth = _auth(auth)
+    listen = list(settings.listen) + [e for e in settings.connect if e not in settings.listen]
+    try:
+        free_or_problem(listen, address)
+    except PortTaken as e:
+        raise click.ClickException(e.detail) from None
+    router = ProcessSpec("router", "mesh.session:run_router_process", {"listen": listen})
     recorder = [ProcessSpec("recorder", RECORDER, {"path": record})] if record else []
     tdgen = ProcessSpec("tdgen", TDGEN_SERVICE, {"cache_dir": str(tdgen_cache or default_cache_dir())})
-    http_adapter = [] if no_http else [ProcessSpec("adapter", ADAPTER,
-                                                   {"address": _host_port(http), "auth": _auth(auth)})]
+    http_adapter = [] if address is None else [ProcessSpec("adapter", ADAPTER, {"address": address, "auth": auth})]
     # the router alone listens; every other process connects to it
     peers = msgspec.structs.replace(settings, listen=())
     sup = Supervisor(peers, [router, tdgen] + recorder + specs + http_adapter)
+    set_title(f"up {scene}")
     sup.start()
-    click.echo(f"twinmesh lab '{scene or DEFAULT_SCENE}' on {', '.join(settings.connect)}"
-               + ("" if no_http else f"; HTTP adapter on http://{http}/") + "  (Ctrl-C to stop)")
-    sys.exit(sup.run_until_stopped())
+    url = None if address is None else f"http://{address[0]}:{address[1]}/"
+    try:
+        wait_ready(peers, lambda: _lab_client(peers), things, READY_TIMEOUT,
+                   alive=lambda: "stopped" if sup.stop.is_set() else sup.dead(),
+                   progress=lambda text: click.echo(f"twinmesh up: {text}", err=True), http=url)
+    except LabDied as e:
+        sup.shutdown()
+        if e.detail == "stopped":
+            sys.exit(0)
+        raise click.ClickException(f"{e.detail} while the lab was starting (its log is above); stopped the lab")
+    except Problem as e:
+        sup.shutdown()
+        raise click.ClickException(f"{e.detail}; stopped the lab") from None
+    status = LabStatus(ready=True, scene=scene, things=things, http=url, zenoh=", ".join(settings.connect))
+    from mesh.session import one_shot_session
+
+    with one_shot_session(peers) as session:
+        queryable = serve_status(session, peers, status)
+        click.echo(f"twinmesh lab '{scene}' ready: {len(things)} Things on Zenoh {status.zenoh}"
+                   + ("" if url is None else f", HTTP {url}") + (f", recorder writing {record}" if record else "")
+                   + "  (Ctrl-C to stop)")
+        code = sup.run_until_stopped()
+        queryable.undeclare()
+    sys.exit(code)
+
+
+@contextmanager
+def _lab_client(settings: MeshSettings):
+    from mesh.session import one_shot_session
+
+    with one_shot_session(settings) as session:
+        yield MeshClient(session, settings)
+
+
+@main.command()
+@click.option("--timeout", type=click.FloatRange(min=0), default=120.0, show_default=True, metavar="S",
+              help="Give up after this many seconds.")
+@click.option("--thing", "things", multiple=True, metavar="NAME",
+              help="Wait for these Things to answer their TD instead (repeatable; for a mesh not started by "
+                   "`twinmesh up`).")
+@click.pass_obj
+def wait(settings: MeshSettings, timeout: float, things: tuple[str, ...]) -> None:
+    """Exit 0 as soon as the lab at --connect (env TWINMESH_CONNECT) is ready; 1 with the reason on timeout.
+
+    For scripts: `twinmesh up & twinmesh wait && twinmesh workflow cube`."""
+    from mesh.lab import wait_ready
+
+    try:
+        status = wait_ready(settings, lambda: _lab_client(settings), list(things) or None, timeout)
+    except Problem as e:
+        raise click.ClickException(f"no ready lab at {', '.join(settings.connect)}: {e.detail}") from None
+    if status is None:
+        click.echo(f"ready: {', '.join(things)}")
+    else:
+        click.echo(f"ready: lab '{status.scene}', {len(status.things)} Things on Zenoh {status.zenoh}"
+                   + ("" if status.http is None else f", HTTP {status.http}"))
 
 
 def _speed(value: str) -> float | None:
@@ -245,11 +331,29 @@ def invoke(settings: MeshSettings, thing: str, action: str, input: str | None) -
             _echo(out)
 
 
+@main.command(context_settings={"ignore_unknown_options": True})  # lets X Y Z be negative
+@click.argument("thing")
+@click.argument("xyz", nargs=-1, type=float, metavar="[X Y Z]")
+@click.option("--joints", metavar="JSON", help="Plan to these joint values instead ('{\"joint\": deg, ...}').")
+@click.pass_obj
+def plan(settings: MeshSettings, thing: str, xyz: tuple[float, ...], joints: str | None) -> None:
+    """Dry-run a robot move to X Y Z (mm, the robot TD's frame) or to --joints: print the path the move
+    would take, moving nothing. Exit 0 when the move would be accepted, 1 with the reason when refused."""
+    if (len(xyz) == 3) == (joints is not None) or len(xyz) not in (0, 3):
+        raise click.UsageError("give X Y Z, or --joints JSON")
+    request = {"joints": _parse_json(joints, "--joints")} if joints else dict(zip("xyz", xyz))
+    with _client(settings) as c:
+        _echo(c.invoke(thing, "planMove", request))
+
+
 def _follow(settings: MeshSettings, subscribe_name: str, thing: str, name: str, count: int | None) -> None:
     import queue
 
     q: queue.Queue = queue.Queue()
     with _client(settings) as c:
+        found = c.check_affordance(thing, "properties" if subscribe_name == "observe" else "events", name)
+        if subscribe_name == "observe" and not getattr(found, "observable", False):
+            raise click.ClickException(f"property {name!r} of {thing} is not observable")
         sub = getattr(c, subscribe_name)(thing, name, q.put)
         click.echo(f"{subscribe_name} {thing}/{name}: waiting for changes (Ctrl-C to stop)", err=True)
         seen = 0

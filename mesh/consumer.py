@@ -13,9 +13,9 @@ from typing import Any, Callable
 import msgspec
 
 from mesh.keys import Keys
-from mesh.problem import BadGateway, Problem, TimedOut, Unavailable
+from mesh.problem import BadGateway, NotFound, Problem, TimedOut, Unavailable
 from mesh.settings import MeshSettings
-from mesh.td import ThingDescription, decode_td
+from mesh.td import AffordanceKind, ThingDescription, decode_td
 
 NOTHING = object()  # "no input" for invoke, distinct from a JSON null input
 
@@ -52,8 +52,12 @@ class MeshClient:
 
     # --- raw requests ------------------------------------------------------------------
     def request(self, key: str, payload: bytes | None = None, timeout: float | None = None,
-                thing: str | None = None) -> Reply:
-        """One query, one reply; Problems for errors, silence and timeouts."""
+                thing: str | None = None, what: tuple[AffordanceKind, str] | None = None) -> Reply:
+        """One query, one reply; Problems for errors, silence and timeouts.
+
+        `what` (kind, name) is the affordance the key stands for: when a live Thing does not answer
+        at once, its TD tells whether it has that affordance at all (404 listing what it has).
+        """
         timeout = self.settings.query_timeout if timeout is None else timeout
         started = time.monotonic()
         kwargs = {"timeout": timeout}
@@ -70,9 +74,14 @@ class MeshClient:
             raise BadGateway(f"{key}: {err[:200].decode(errors='replace')}")
         elapsed = time.monotonic() - started
         name = thing or (self.keys.parse(key).thing if self.keys.parse(key) else key)
-        if elapsed >= timeout * 0.95 and self.is_alive(name):
+        if not self.is_alive(name):
+            raise Unavailable(f"{name} is not on the mesh")
+        if elapsed >= timeout * 0.95:
             raise TimedOut(f"{name} did not answer {key} within {timeout:g} s")
-        raise Unavailable(f"{name} is not on the mesh")
+        if what is not None:  # alive, yet nothing serves the key: most likely a wrong name
+            self.check_affordance(name, *what)
+            raise Unavailable(f"{name} did not answer {key}")
+        raise NotFound(f"{name} has nothing at {key}")
 
     # --- affordances -------------------------------------------------------------------
     def td(self, thing: str) -> ThingDescription:
@@ -81,16 +90,27 @@ class MeshClient:
     def td_bytes(self, thing: str) -> bytes:
         return self.request(self.keys.td(thing), thing=thing).payload
 
+    def check_affordance(self, thing: str, kind: AffordanceKind, name: str) -> Any:
+        """The affordance from the Thing's TD; NotFound (naming what it has) if it has none of that name,
+        Unavailable if the Thing is gone."""
+        td = self.td(thing)
+        found = td.affordance(kind, name)
+        if found is None:
+            raise NotFound(td.no_such(thing, kind, name))
+        return found
+
     def read(self, thing: str, prop: str) -> Any:
-        return _json(self.request(self.keys.property(thing, prop), thing=thing).payload)
+        return _json(self.request(self.keys.property(thing, prop), thing=thing, what=("properties", prop)).payload)
 
     def write(self, thing: str, prop: str, value: Any) -> None:
-        self.request(self.keys.property(thing, prop), msgspec.json.encode(value), thing=thing)
+        self.request(self.keys.property(thing, prop), msgspec.json.encode(value), thing=thing,
+                     what=("properties", prop))
 
     def invoke(self, thing: str, action: str, input: Any = NOTHING, timeout: float | None = None) -> Any:
         payload = None if input is NOTHING else msgspec.json.encode(input)
         timeout = self.settings.action_timeout if timeout is None else timeout
-        return _json(self.request(self.keys.action(thing, action), payload, timeout, thing=thing).payload)
+        return _json(self.request(self.keys.action(thing, action), payload, timeout, thing=thing,
+                                  what=("actions", action)).payload)
 
     def file(self, thing: str, name: str) -> Reply:
         return self.request(self.keys.file(thing, name), thing=thing)

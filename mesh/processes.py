@@ -24,11 +24,14 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class ProcessSpec:
-    """One process of a lab: a name and a `module:function` entry point with keyword arguments."""
+    """One process of a lab: a name and a `module:function` entry point with keyword arguments.
+
+    `role` is what `ps` shows after `twinmesh: ` (default: the name), e.g. `world iot-lab`."""
 
     name: str
     target: str
     kwargs: dict[str, Any] = field(default_factory=dict)
+    role: str = ""
 
 
 class StopEvent(threading.Event):
@@ -59,7 +62,15 @@ def resolve(target: str):
     return getattr(importlib.import_module(module), func)
 
 
+def set_title(role: str) -> None:
+    """Name this process in `ps`/`top` as `twinmesh: <role>` (instead of `python -c from multiprocessing...`)."""
+    from setproctitle import setproctitle
+
+    setproctitle(f"twinmesh: {role}")
+
+
 def _child(spec: ProcessSpec, settings_json: bytes, log_level: int) -> None:
+    set_title(spec.role or spec.name)
     logging.basicConfig(level=log_level, format=f"%(asctime)s {spec.name} %(levelname)s %(message)s")
     stop = install_stop_handlers()
     settings = msgspec.json.decode(settings_json, type=MeshSettings)
@@ -78,6 +89,8 @@ class Supervisor:
         self.stop = StopEvent()
 
     def start(self) -> None:
+        """Spawn every process; from here on SIGINT/SIGTERM set `self.stop` (call from the main thread)."""
+        self.stop = install_stop_handlers()
         payload = msgspec.json.encode(self.settings)
         level = logging.getLogger().getEffectiveLevel()
         for spec in self.specs:
@@ -85,9 +98,15 @@ class Supervisor:
             p.start()
             self.procs[spec.name] = p
 
+    def dead(self) -> str | None:
+        """A sentence naming a process that exited on its own, or None while all run."""
+        for name, p in self.procs.items():
+            if not p.is_alive():
+                return f"process {name} exited (code {p.exitcode})"
+        return None
+
     def run_until_stopped(self) -> int:
         """Block until a signal or a child exits on its own; then stop all. Returns an exit code."""
-        self.stop = install_stop_handlers()
         failed = ""
         while not self.stop.wait(0.2):
             dead = [n for n, p in self.procs.items() if not p.is_alive()]

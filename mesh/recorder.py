@@ -447,7 +447,8 @@ class _Writer(threading.Thread):
         if parsed.kind == "events":
             return mapping.event_entries(parsed.thing, parsed.name, value)
         if parsed.kind == "actions":
-            return mapping.action_entries(parsed.thing, parsed.name, value)
+            drawn = self.robots.draw_path(parsed.thing, value) if self.robots.knows(parsed.thing) else []
+            return mapping.action_entries(parsed.thing, parsed.name, value) + drawn
         return []
 
 

@@ -49,6 +49,8 @@ WORKSPACE_REL = "workspace"
 FREE_COLOUR = (40, 180, 70)
 COLLIDING_COLOUR = (220, 50, 40)
 HULL_COLOUR = (70, 140, 230, 60)  # RGBA: the alpha makes it see-through
+PATH_COLOUR = (250, 170, 20)
+PATH_RADIUS = 0.004  # m
 POINT_RADIUS = rr.Radius.ui_points(1.5)  # on screen, whatever the zoom
 _UNITS = {"deg": (math.pi / 180, "rad"), "degree": (math.pi / 180, "rad"), "degrees": (math.pi / 180, "rad"),
           "rad": (1.0, "rad"), "radian": (1.0, "rad"), "radians": (1.0, "rad"),
@@ -105,6 +107,15 @@ class Workspace:
             xyz, vertices = to_twin_frame(xyz, twin), to_twin_frame(vertices, twin)
         return cls(thing, (xyz / 1000).astype(np.float32), colliding, (vertices / 1000).astype(np.float32),
                    triangles.astype(np.uint32), normals.astype(np.float32))
+
+
+def _tip(call: Any) -> np.ndarray | None:
+    """`output.path.tip` of an action call as (N, 3) mm, or None when the call carries none."""
+    try:
+        tip = np.asarray(call["output"]["path"]["tip"], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        return None
+    return tip if tip.ndim == 2 and tip.shape[1] == 3 and len(tip) >= 2 and np.isfinite(tip).all() else None
 
 
 def read_robot(thing: str, td: ThingDescription, get: Callable[[str], bytes]) -> RobotFiles:
@@ -202,6 +213,7 @@ class RobotDrawer:
         self.things: dict[str, _RobotThing] = {}
         self._joints: dict[tuple[str, str], SampleBatch] = {}
         self._styled: dict[str, str] = {}  # joint series -> the unit its name was logged with
+        self._path_frames: dict[str, str] = {}  # robot -> the frame its path entity was placed in
         self._rows = 0
         self._oldest: float | None = None
         self._world_logged = False
@@ -286,6 +298,24 @@ class RobotDrawer:
             return
         for parts in (("points", "free"), ("points", "colliding"), ("hull",)):
             self.rec.log(thing_robot_path(name, "workspace", *parts), rr.CoordinateFrame(t.frame), static=True)
+
+    # --- a move's path (over time) -------------------------------------------------------------
+    def draw_path(self, thing: str, call: Any) -> list[Entry]:
+        """The end effector's sweep of a robot move (its answer's `path.tip`, mm in the TD's frame) as a
+        line in the robot's base frame, shown from that move on; nothing for other calls."""
+        tip = _tip(call)
+        t = self.things.get(thing)
+        if tip is None or t is None:
+            return []
+        if t.files is not None and t.files.twin.frame == "real":
+            tip = to_twin_frame(tip, t.files.twin)
+        path = thing_robot_path(thing, "path")
+        frame = self._frame(t)
+        if frame is not None and self._path_frames.get(thing) != frame:
+            self.rec.log(path, rr.CoordinateFrame(frame), static=True)
+            self._path_frames[thing] = frame
+        return [Entry(path, rr.LineStrips3D([(tip / 1000).astype(np.float32)], colors=[PATH_COLOUR],
+                                            radii=[PATH_RADIUS]))]
 
     # --- joints (over time) --------------------------------------------------------------------
     def add_joints(self, thing: str, values: Any, wall: float, seq: int, sim: float | None) -> None:

@@ -1,6 +1,7 @@
 """Opening Zenoh sessions the one way this project does it."""
 from __future__ import annotations
 
+import logging
 import os
 import threading
 from contextlib import ExitStack, contextmanager
@@ -39,8 +40,19 @@ def is_connected(session) -> bool:
 
 
 def run_router_process(settings: MeshSettings, stop: threading.Event, listen: list[str] = ()) -> None:
-    """Process entry for the lab's router: it listens where the lab's peers connect."""
-    with open_session(settings.as_router(tuple(listen) or None)):
+    """Process entry for the lab's router: it listens where the lab's peers connect.
+
+    A router that cannot listen (the port was taken after `up` checked it) logs one line and
+    exits with code 1, so the supervisor stops the lab instead of leaving it without a router.
+    """
+    import zenoh
+
+    with ExitStack() as stack:
+        try:
+            stack.enter_context(open_session(settings.as_router(tuple(listen) or None)))
+        except zenoh.ZError as e:
+            logging.getLogger(__name__).error("the router cannot listen on %s: %s", ", ".join(listen), e)
+            raise SystemExit(1) from None
         stop.wait()
 
 

@@ -114,6 +114,13 @@ class ThingDescription(msgspec.Struct, omit_defaults=True,
         """The named affordance of a kind, or None."""
         return getattr(self, kind).get(name)
 
+    def no_such(self, thing: str, kind: AffordanceKind, name: str) -> str:
+        """The sentence for a missing affordance: what was asked, and what the Thing has instead."""
+        singular = {"properties": "property", "actions": "action", "events": "event"}[kind]
+        have = sorted(getattr(self, kind))
+        return (f"{thing} has no {singular} {name!r}; its {kind}: {', '.join(have)}" if have
+                else f"{thing} has no {singular} {name!r}; it has no {kind}")
+
     def to_json(self) -> bytes:
         return msgspec.json.encode(self)
 

@@ -59,6 +59,22 @@ class Calibration(msgspec.Struct):
     def to_json(self) -> bytes:
         return msgspec.json.format(msgspec.json.encode(self), indent=2) + b"\n"
 
+    def residual_table(self) -> str:
+        """Per pair, the residual (mm) of every fit, the one in use marked with *; then each fit's RMS."""
+        names = [f.method + ("*" if f.method == self.used else "") for f in self.fits]
+        widths = [max(len(n), 10) for n in names]
+        lines = ["pair  twin (mm)                     real (mm)                     "
+                 + "  ".join(n.rjust(w) for n, w in zip(names, widths))]
+        for k, (t, r) in enumerate(zip(self.twin, self.real)):
+            cells = "  ".join(f"{f.residuals_mm[k]:{w}.3f}" for f, w in zip(self.fits, widths))
+            lines.append(f"{k + 1:>4}  {_xyz(t):<28}  {_xyz(r):<28}  {cells}")
+        lines.append("rms".rjust(4) + " " * 62 + "  ".join(f"{f.rms_mm:{w}.3f}" for f, w in zip(self.fits, widths)))
+        return "\n".join(lines)
+
+
+def _xyz(p: tuple[float, float, float]) -> str:
+    return ", ".join(f"{v:.2f}" for v in p)
+
 
 def read_pairs(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """(twin (N, 3), real (N, 3)) from a calibration CSV."""

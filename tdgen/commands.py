@@ -62,6 +62,9 @@ def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir
                   if result.concave_volume_mm3 is not None else ""))
     click.echo("bounds (mm, {} frame): x {:.1f}..{:.1f}, y {:.1f}..{:.1f}, z {:.1f}..{:.1f}".format(
         result.frame, low[0], high[0], low[1], high[1], low[2], high[2]))
+    if result.calibration is not None:
+        click.echo(f"calibration residuals (mm; * = the {result.calibration.used} map in use):")
+        click.echo(result.calibration.residual_table())
     if concave and result.concave_volume_mm3 is None:
         click.echo("no alpha shape: the collision-free points are too few or too flat", err=True)
     for path in result.files.values():

@@ -41,6 +41,7 @@ class GenerationResult:
     collision_free: int
     frame: str
     timings: dict[str, float] = field(default_factory=dict)  # seconds per step
+    calibration: Calibration | None = None
 
     def summary(self) -> dict:
         """JSON-ready summary (paths as strings)."""
@@ -144,7 +145,7 @@ def generate(robot: Robot | str | Path, scene: Scene | str | Path | None = None,
         out_dir=out, files=files, volume_mm3=hull.volume,
         concave_volume_mm3=concave_solid.volume if concave_solid is not None else None,
         low_mm=_triple(low), high_mm=_triple(high), samples=len(sampled.q), collision_free=len(free),
-        frame=frame, timings=timings)
+        frame=frame, timings=timings, calibration=calibration)
 
 
 def _triple(v: np.ndarray) -> tuple[float, float, float]:

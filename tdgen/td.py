@@ -55,9 +55,47 @@ def _property(schema: DataSchema, name: str, description: str) -> PropertyAfford
                     subprotocol="longpoll")])
 
 
-def _action(schema: DataSchema, name: str, description: str) -> ActionAffordance:
-    return ActionAffordance(input=schema, description=description, synchronous=True,
+def _action(schema: DataSchema | None, name: str, description: str, output: DataSchema | None = None,
+            safe: bool | None = None) -> ActionAffordance:
+    return ActionAffordance(input=schema, output=output, description=description, synchronous=True, safe=safe,
                             forms=[Form(href=f"actions/{name}", op="invokeaction", contentType=JSON)])
+
+
+def _numbers(unit: str | None = None) -> DataSchema:
+    return DataSchema(type="array", items=DataSchema(type="number", unit=unit))
+
+
+def move_output_schema(robot: Robot) -> DataSchema:
+    """What a move (or its dry run) answers: the collision-free path, where it ends, how it was found."""
+    xyz = {axis: DataSchema(type="number", unit="mm") for axis in "xyz"}
+    names = [j.name for j in robot.joints]
+    return DataSchema(type="object", required=["path", "reached", "error_mm", "method", "planning_ms"], properties={
+        "path": DataSchema(type="object", required=["joints", "points", "times"], description=(
+            "Joint-space waypoints from where the arm was (first) to where it ends (last), each in the joint "
+            f"order of `joints` ({', '.join(names)}; deg for revolute, mm for prismatic joints); `times` in "
+            "simulated seconds from the start. The arm stops at every waypoint."), properties={
+            "joints": DataSchema(type="array", items=DataSchema(type="string", enum=names)),
+            "points": DataSchema(type="array", items=_numbers()),
+            "times": _numbers("s"),
+            "tip": DataSchema(type="array", items=_numbers("mm"), description=(
+                "The end effector along the path (mm, the TD's frame), several points per segment: what "
+                "the move sweeps, for drawing."))}),
+        "reached": DataSchema(type="object", properties=xyz, required=list(xyz),
+                              description="Where the end effector ends (mm, the TD's frame)."),
+        "error_mm": DataSchema(type="number", unit="mm", minimum=0.0,
+                               description="Distance from the Cartesian target (0 for joint moves)."),
+        "method": DataSchema(type="string", enum=["straight", "planned"],
+                             description="straight: the direct joint-space path was free; planned: by OMPL."),
+        "planning_ms": DataSchema(type="number", unit="ms", minimum=0.0),
+        "collision_probability": DataSchema(type="number", minimum=0.0, maximum=1.0, description=(
+            "Share of colliding samples among the target's nearest sampled points (information; Cartesian "
+            "targets with sampled neighbours only)."))})
+
+
+def plan_input_schema(joints: DataSchema, cartesian: DataSchema) -> DataSchema:
+    """Either a Cartesian target (x, y, z) or `joints` (the joint move's input)."""
+    return DataSchema(type="object", description="Either x, y, z (mm) or joints, as the move actions take them.",
+                      properties={**(cartesian.properties or {}), "joints": joints})
 
 
 FRAMES = {"twin": "the robot's base frame", "real": "the real robot's frame (calibrated)"}
@@ -67,6 +105,7 @@ def build_td(robot: Robot, low: np.ndarray, high: np.ndarray, *, frame: str = "t
              thing_id: str | None = None, description: str = "", base_url: str | None = None) -> dict:
     """The TD as a JSON-ready dict; `low`/`high` are the collision-free bounds (mm, in `frame`)."""
     joints, cartesian = joint_schema(robot), cartesian_schema(low, high)
+    output = move_output_schema(robot)
     td = ThingDescription(
         title=title or robot.name,
         context=list(CONTEXT),
@@ -80,11 +119,24 @@ def build_td(robot: Robot, low: np.ndarray, high: np.ndarray, *, frame: str = "t
                                               f"End-effector position (mm) in {FRAMES[frame]}."),
         },
         actions={
-            "moveToJointPosition": _action(joints, "moveToJointPosition", "Move to these joint values; "
-                                           "returns when the motion has finished."),
+            "moveToJointPosition": _action(joints, "moveToJointPosition", "Move to these joint values along a "
+                                           "collision-free path; returns when the motion has finished, with the "
+                                           "path. Refused (422, nothing moves) where the goal collides "
+                                           "(`collision`) or no path is found (`no-path`).", output),
             "moveToCartesianPosition": _action(cartesian, "moveToCartesianPosition",
-                                               "Move the end effector to this position (mm); refused outside the "
-                                               "workspace or where a collision is likely."),
+                                               "Move the end effector to this position (mm) along a collision-free "
+                                               "path; returns when the motion has finished, with the path. Refused "
+                                               "(422, nothing moves) outside the workspace (`outside-workspace`), "
+                                               "where no joint configuration reaches (`unreachable`), where every "
+                                               "one found collides (`collision`) or no path is found (`no-path`).",
+                                               output),
+            "planMove": _action(plan_input_schema(joints, cartesian), "planMove",
+                                "A dry run: answers exactly as the move would (path or refusal), from where the "
+                                "arm stands now, without moving.", output, safe=True),
+            "stop": _action(None, "stop", "Halt a move under way where the arm is (the move answers 409 "
+                            "move-stopped); `stopped` says whether one was under way.",
+                            DataSchema(type="object", required=["stopped"],
+                                       properties={"stopped": DataSchema(type="boolean")})),
         },
         links=[Link(href=name, rel=rel, type=media) for name, (rel, media) in ARTEFACTS.items()],
     )

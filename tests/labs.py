@@ -119,6 +119,8 @@ def start_lab(tmp: Path, scene: str | None = "lights", http: bool = True, things
                             cwd=REPO, start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lab = Lab(endpoint, f"http://127.0.0.1:{port}" if http else None, proc, log)
     try:
+        ready = lab.cli("wait", "--timeout", "300", timeout=330)  # what a user's script does
+        assert ready.returncode == 0, f"{ready.stderr}\n--- lab log ---\n{log.read_text()[-4000:]}"
         if things:
             lab.wait_things(things)
         if http:

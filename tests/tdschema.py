@@ -11,9 +11,10 @@ from pathlib import Path
 
 import jsonschema
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-TD_SCHEMA = SHARED / "wot" / "td-1.1-json-schema-validation.json"
-REFERENCE_TDS = SHARED / "reference-tds"
+DATA = Path(__file__).resolve().parent / "data"  # copies, with their sources in data/SOURCES.md
+TD_SCHEMA = DATA / "wot" / "td-1.1-json-schema-validation.json"
+TM_SCHEMA = DATA / "wot" / "tm-1.1-json-schema-validation.json"
+REFERENCE_TDS = DATA / "reference-tds"
 
 
 @lru_cache(maxsize=1)

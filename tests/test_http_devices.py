@@ -13,13 +13,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote
 
-import os
-import signal
 
 import httpx
 import pytest
 
-from labs import interrupt, REPO, Lab, free_port, start_lab, stop_process
+from labs import interrupt, REPO, Lab, free_port, start_lab
 from tdschema import assert_valid_td
 
 TESTS = Path(__file__).resolve().parent

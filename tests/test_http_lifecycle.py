@@ -3,15 +3,13 @@ stops promptly with observers connected. Times are measured and shown in the ass
 """
 from __future__ import annotations
 
-import os
-import signal
 import threading
 import time
 
 import httpx
 import pytest
 
-from labs import interrupt, free_port, start_lab, stop_process
+from labs import interrupt, free_port, start_lab
 from test_http_devices import poll, spawn_device
 
 CONTRACT = 2.0  # seconds: the issue's join/leave contract

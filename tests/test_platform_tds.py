@@ -1,6 +1,6 @@
 """The iot-platform devices' TDs, as served on Zenoh and through the HTTP adapter, against the real lab's.
 
-Each device TD must carry the affordances of its real-lab TD (../shared/reference-tds/real-lab/)
+Each device TD must carry the affordances of its real-lab TD (tests/data/reference-tds/real-lab/)
 with the same schemas (type, minimum/maximum, required, readOnly, observable, const, items...),
 compared by name, except the deviations listed in ALLOWED below, each with its reason. `type`
 may be added where the real TD has none (SPEC §5: `type` on every data schema). Every TD is valid

@@ -81,6 +81,14 @@ POINTS_2, XYZ_2, COLLIDING_2 = make_points(120, seed=2)
 HULL_1 = make_hull(XYZ_1[~COLLIDING_1])
 
 
+TIP_MM = [[600.0, -200.0, 400.0], [620.0, -150.0, 450.0], [640.0, -100.0, 500.0]]
+MOVE_CALL = {"input": {"x": 640, "y": -100, "z": 500}, "status": 200, "seconds": 0.5,  # as the runtime publishes it
+             "output": {"path": {"joints": JOINTS, "points": [[0.0] * 6, [1.0] * 6], "times": [0.0, 0.5],
+                                 "tip": TIP_MM},
+                        "reached": {"x": 640.0, "y": -100.0, "z": 500.0}, "error_mm": 0.0, "method": "straight",
+                        "planning_ms": 3.0}}
+
+
 def joint_sample(i: int) -> dict[str, float]:
     return {**FIRST, "shoulder_pan_joint": SWEEP_DEG[i], "elbow_joint": ELBOW_DEG}
 
@@ -110,6 +118,7 @@ def recording(tmp_path_factory) -> Path:
                 for i in range(len(SWEEP_DEG)):
                     robot.set_value("getJointposition", joint_sample(i))
                     time.sleep(0.005)
+                session.put("wot/ur10/actions/moveToCartesianPosition", msgspec.json.encode(MOVE_CALL))
                 served["points.csv"] = POINTS_2  # the workspace regenerated: the robot says so with its TD
                 robot.update_td(robot_td())
                 time.sleep(1.5)  # the last samples and the new workspace reach the recorder
@@ -185,6 +194,12 @@ def test_workspace_points_are_split_by_collision_and_coloured(recording):
     assert rgb(latest(recording, f"{ws}/colliding", "Points3D:colors")[0]) == (220, 50, 40)
     for part in ("free", "colliding"):
         assert latest(recording, f"{ws}/{part}", "CoordinateFrame:frame") == ["ur10/base_link"]
+
+
+def test_a_moves_swept_path_is_drawn_in_the_robots_base_frame(recording):
+    strips = read_column(recording, "/robots/ur10/path", "LineStrips3D:strips")
+    assert len(strips) == 1 and np.array(strips[0][0]) == pytest.approx(np.array(TIP_MM) / 1000, abs=1e-6)
+    assert latest(recording, "/robots/ur10/path", "CoordinateFrame:frame") == ["ur10/base_link"]
 
 
 def test_hull_is_a_see_through_mesh_in_the_base_frame(recording):
@@ -344,6 +359,8 @@ def test_a_ur10_thing_is_recorded_with_its_trajectory_and_workspace(tmp_path):
     colliding = static_values(path, "/robots/ur10/workspace/points/colliding", "Points3D:positions")[-1]
     assert len(free) + len(colliding) == 3000
     assert latest(path, "/robots/ur10/workspace/hull", "Mesh3D:vertex_positions")
+    (swept,) = read_column(path, "/robots/ur10/path", "LineStrips3D:strips")  # the move's path, from its answer
+    assert np.array(swept[0])[-1] * 1000 == pytest.approx([target[a] for a in "xyz"], abs=0.01)
 
 
 def _wait_workspace(lab, thing: str, timeout: float) -> dict:

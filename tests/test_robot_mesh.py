@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import queue
 import time
@@ -126,7 +127,9 @@ def test_each_robot_td_is_generated_on_the_mesh_served_and_valid(lab, robots, na
     td = robots[name]["td"]
     assert_valid_td(td)
     assert set(td["properties"]) == {"getJointposition", "getCartesianposition"}
-    assert set(td["actions"]) == {"moveToJointPosition", "moveToCartesianPosition"}
+    assert set(td["actions"]) == {"moveToJointPosition", "moveToCartesianPosition", "planMove", "stop"}
+    assert td["actions"]["moveToCartesianPosition"]["output"]["required"] == ["path", "reached", "error_mm", "method",
+                                                                             "planning_ms"]
     assert td["version"] == {"instance": "0"} and td["id"] == f"urn:twinmesh:robot:{name}"
     rels = {link["rel"]: link["href"] for link in td["links"]}
     assert {r: rels[r] for r in ("workspace", "dataset-points", "scene", "twin")} == {
@@ -171,6 +174,11 @@ def test_node_wot_moves_each_robot_to_a_reachable_target_within_a_hundredth_of_a
     assert all(r["ok"] for r in results[:3]), results
     reached = results[1]["value"]
     assert math.dist([reached[a] for a in "xyz"], [target[a] for a in "xyz"]) <= TOL_MM
+    answer = results[0]["value"]  # node-wot read the move's output (and checked it against the TD's schema)
+    assert answer["method"] in ("straight", "planned") and answer["error_mm"] <= TOL_MM
+    assert answer["reached"] == pytest.approx(reached, abs=1e-3)
+    assert answer["path"]["points"][-1] == pytest.approx([results[2]["value"][j] for j in answer["path"]["joints"]],
+                                                         abs=1e-4)
     assert set(results[2]["value"]) == set(robots[name]["td"]["properties"]["getJointposition"]["properties"])
     assert results[3]["ok"] is False and "Client error" in results[3]["error"]  # node-wot drops the body
     assert results[4]["value"] == reached
@@ -195,7 +203,7 @@ def _in_wall(robot: dict, base_y: float) -> tuple[dict[str, float], str]:
     assert candidates, "the wall is out of the robot's Cartesian bounds"
     inside = [p for p in candidates if ws.check(p).inside]
     point = (inside or candidates)[0]
-    return dict(zip("xyz", map(float, point))), "collision-risk" if inside else "outside-workspace"
+    return dict(zip("xyz", map(float, point))), "collision" if inside else "outside-workspace"
 
 
 @pytest.mark.parametrize("name", ROBOTS)
@@ -209,12 +217,12 @@ def test_targets_outside_the_workspace_or_in_the_wall_are_refused_and_nothing_mo
         assert r.status_code == 422 and r.headers["content-type"].startswith(PROBLEM), (target, r.text)
         problem = r.json()
         assert problem["reason"] == reason, (target, problem)
-        if reason == "collision-risk":
-            assert "collision_probability" in problem["extra"]
+        if reason == "collision":
+            assert "collision_probability" in problem["extra"] and problem["extra"]["collisions"]
     assert http.get(f"/{name}/properties/getJointposition").json() == before
     print(f"\n{name}: a target in the wall {wall} -> {wall_reason}")
     if name == "ur10":
-        assert wall_reason == "collision-risk"  # it reaches over the wall: the wall is inside its hull
+        assert wall_reason == "collision"  # it reaches over the wall: the wall is inside its hull
 
 
 def test_joint_states_are_published_while_moving_and_the_final_one_before_the_reply(lab, robots, http):
@@ -271,3 +279,42 @@ def test_a_restarted_robot_gets_its_td_from_the_cache(lab, robots, http):
     assert _bounds(td) == _bounds(robots["ur10"]["td"])
     print(f"\nur10 time to the generated TD: cold {robots['ur10']['seconds']:.2f} s (with two other robots "
           f"starting), cached {cached:.2f} s; generation {before['seconds']:.2f} s, cache hit {after['seconds']:.3f} s")
+
+
+def test_eval_ik_leaves_a_refused_targets_pose_and_joints_empty(lab, robots, tmp_path):
+    """Nothing moves for a refused target: its row must not repeat the previous target's pose and joints."""
+    reachable = safe_targets(robots["ur10"]["points"], 1, seed=5)[0]
+    path = tmp_path / "targets.csv"
+    path.write_text(f"{reachable['x']},{reachable['y']},{reachable['z']}\n99999,0,0\n")
+    r = lab.cli("eval", "ik", "--thing", "ur10", "--targets", str(path), timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    first, refused = list(csv.DictReader(io.StringIO(r.stdout)))
+    assert first["status"] == "reached" and first["shoulder_pan_joint"] != ""
+    assert refused["status"] == "refused" and refused["reason"]
+    joints = [k for k in refused if k.endswith("_joint")]
+    assert joints and all(refused[k] == "" for k in ["reached_x", "reached_y", "reached_z", "error_mm", *joints])
+
+
+def test_plan_move_answers_like_the_move_over_http_and_the_cli_and_moves_nothing(lab, robots, http):
+    target = safe_targets(robots["ur10"]["points"], 1, seed=9)[0]
+    before = http.get("/ur10/properties/getJointposition").json()
+    r = http.post("/ur10/actions/planMove", json=target)
+    assert r.status_code == 200, r.text
+    plan = r.json()
+    assert plan["path"]["points"][0] == pytest.approx([before[j] for j in plan["path"]["joints"]], abs=1e-4)
+    assert math.dist([plan["reached"][a] for a in "xyz"], [target[a] for a in "xyz"]) <= TOL_MM
+    assert http.get("/ur10/properties/getJointposition").json() == before
+    cli = lab.cli("plan", "ur10", *(str(target[a]) for a in "xyz"), timeout=60)
+    assert cli.returncode == 0, cli.stderr
+    assert json.loads(cli.stdout)["method"] in ("straight", "planned")
+    refused = lab.cli("plan", "ur10", "0", "0", "-2000", timeout=60)  # far below the table
+    assert refused.returncode == 1 and ("outside" in refused.stderr or "maximum" in refused.stderr
+                                        or "minimum" in refused.stderr), refused.stderr
+    both = http.post("/ur10/actions/planMove", json={**target, "joints": before})
+    assert both.status_code == 400 and "either" in both.json()["detail"]
+    assert http.get("/ur10/properties/getJointposition").json() == before
+
+
+def test_stop_answers_whether_a_move_was_under_way(robots, http):
+    r = http.post("/ur10/actions/stop")
+    assert r.status_code == 200 and r.json() == {"stopped": False}

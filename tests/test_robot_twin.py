@@ -21,22 +21,11 @@ from mesh.settings import MeshSettings
 from mesh.td import decode_td
 from tdgen.calibration import fit_calibration
 from tdgen.generate import generate
-from tdgen.robot import Robot
-from tdgen.scene import BoxBody, build_into, load_scene
+from tdgen.scene import BoxBody, build_into
 from tdgen.service import TdgenService, twin_hash
 from tdschema import assert_valid_td
 
 SAMPLES = 4000
-
-
-@pytest.fixture(scope="module")
-def ur10():
-    return Robot.load("ur10.urdf")
-
-
-@pytest.fixture(scope="module")
-def scene():
-    return load_scene("table-and-wall")
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +56,7 @@ def safe_targets(workspace, twin: RobotTwin, n: int, seed: int = 0) -> np.ndarra
     free = workspace.positions[~workspace.collision]
     out = []
     for p in free[np.random.default_rng(seed).permutation(len(free))]:
-        c = workspace.check(p, twin.k, twin.radius_mm, twin.max_collision_probability)
+        c = workspace.check(p, twin.k, twin.radius_mm, 0.5)
         if c.ok and c.collision_probability == 0 and c.margin_mm > 50:
             out.append(p)
             if len(out) == n:
@@ -96,18 +85,36 @@ def test_a_reachable_target_is_reached_within_a_hundredth_of_a_millimetre(twin, 
         assert np.linalg.norm(np.array([reached[a] for a in "xyz"]) - target) <= 0.01
 
 
+def _in_wall(generated) -> tuple[int, int, int]:
+    """A point inside the wall (y 550..650 mm) that the hull contains and samples surround."""
+    return next(p for p in ((x, 600, z) for x in range(-400, 401, 50) for z in range(500, 951, 50))
+                if generated.check(p).inside and generated.check(p).neighbours)
+
+
 def test_refused_moves_name_their_reason_and_nothing_moves(twin, generated):
     twin.set_workspace(generated)
     before = twin.joint_position()
-    in_wall = next(p for p in ((x, 600, z) for x in range(-400, 401, 50) for z in range(500, 951, 50))
-                   if generated.check(p).inside and generated.check(p).neighbours)  # the wall: y 550..650 mm
-    cases = {"outside-workspace": (0, 0, 3000), "collision-risk": in_wall}
+    cases = {"outside-workspace": (0, 0, 3000), "collision": _in_wall(generated)}
     for reason, target in cases.items():
         with pytest.raises(Problem) as err:
             twin.move_to_cartesian(target)
         assert err.value.status == 422 and err.value.reason == reason, err.value
-    assert err.value.extra["collision_probability"] > 0.5
+    assert err.value.extra["collision_probability"] > 0.5  # information, in every answer
+    assert any("wall" in pair for pair in err.value.extra["collisions"]), err.value.extra
     assert twin.joint_position() == before
+
+
+def test_the_neighbour_collision_probability_gates_a_move_only_when_asked(world, ur10, scene, generated):
+    gated = RobotTwin(world, ur10, "ur10-gated", Base(tuple(scene.robot.position)), scene,
+                      max_collision_probability=0.5)
+    try:
+        gated.set_workspace(generated)
+        with pytest.raises(Problem) as err:
+            gated.move_to_cartesian(_in_wall(generated))
+        assert err.value.status == 422 and err.value.reason == "collision-risk"  # the thesis's check
+        assert err.value.extra["max_collision_probability"] == 0.5
+    finally:
+        gated.close()
 
 
 def test_a_joint_move_into_the_table_is_refused(twin):
@@ -115,7 +122,8 @@ def test_a_joint_move_into_the_table_is_refused(twin):
     into_table = {**before, "shoulder_lift_joint": 90.0}  # the arm straight down through the table top
     with pytest.raises(Problem) as err:
         twin.move_to_joints(into_table)
-    assert err.value.status == 422 and err.value.reason == "collision-risk"
+    assert err.value.status == 422 and err.value.reason == "collision"
+    assert "table" in err.value.detail
     assert twin.joint_position() == before
 
 
@@ -220,7 +228,7 @@ def test_a_new_obstacle_regenerates_a_smaller_workspace_and_td_observers_see_it(
         assert robots["ur10"]["hash"] == twin.workspace_hash and robots["ur10"]["cached"] is False
         with pytest.raises(Problem) as err:  # where the box now stands
             client.invoke("ur10", "moveToCartesianPosition", dict(zip("xyz", target.tolist())))
-        assert err.value.status == 422 and err.value.reason in ("collision-risk", "outside-workspace")
+        assert err.value.status == 422 and err.value.reason in ("collision", "no-path", "outside-workspace")
         assert {(link.rel, link.href) for link in second.links} >= {
             ("workspace", "files/workspace.stl"), ("dataset-points", "files/points.csv"),
             ("scene", "files/scene.json"), ("twin", "files/twin.json"), ("model", "files/ur10.urdf")}

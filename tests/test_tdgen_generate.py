@@ -42,7 +42,7 @@ def test_td_is_valid_against_the_official_schema(generated):
 def test_td_has_the_affordances_forms_and_links_of_spec_4(generated):
     _, _, td, _, _ = generated
     assert set(td["properties"]) == {"getJointposition", "getCartesianposition"}
-    assert set(td["actions"]) == {"moveToJointPosition", "moveToCartesianPosition"}
+    assert set(td["actions"]) == {"moveToJointPosition", "moveToCartesianPosition", "planMove", "stop"}
     for name, prop in td["properties"].items():
         assert prop["readOnly"] and prop["observable"]
         assert [f["href"] for f in prop["forms"]] == [f"properties/{name}"] * 2
@@ -50,7 +50,11 @@ def test_td_has_the_affordances_forms_and_links_of_spec_4(generated):
     for name, action in td["actions"].items():
         assert action["synchronous"] is True
         assert action["forms"][0]["href"] == f"actions/{name}"
+    for name in ("moveToJointPosition", "moveToCartesianPosition"):
+        action = td["actions"][name]
         assert action["input"]["required"] == list(action["input"]["properties"])
+        assert action["output"] == td["actions"]["planMove"]["output"]  # a dry run answers like the move
+    assert td["actions"]["planMove"]["safe"] is True and "input" not in td["actions"]["stop"]
     assert td["actions"]["moveToJointPosition"]["input"]["properties"] == td["properties"]["getJointposition"]["properties"]
     assert td["actions"]["moveToCartesianPosition"]["input"]["properties"] == \
         td["properties"]["getCartesianposition"]["properties"]

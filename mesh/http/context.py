@@ -15,8 +15,6 @@ from mesh.keys import SLUG
 from mesh.problem import NotFound
 from mesh.td import AffordanceKind, ThingDescription
 
-_KIND_NAME = {"properties": "property", "actions": "action", "events": "event"}
-
 
 def registry(request: Request) -> Registry:
     return request.app.state.registry
@@ -51,5 +49,5 @@ async def affordance(request: Request, kind: AffordanceKind) -> tuple[str, str, 
     name = request.path_params["name"]
     found = td.affordance(kind, name)
     if found is None:
-        raise NotFound(f"{thing} has no {_KIND_NAME[kind]} {name!r}")
+        raise NotFound(td.no_such(thing, kind, name))
     return thing, name, found

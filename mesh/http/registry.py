@@ -283,7 +283,7 @@ class Registry:
         self._entry(thing)
         try:
             return await self.call(self.client.request, self.keys.file(thing, name), None, None, thing)
-        except Unavailable:
+        except (Unavailable, NotFound):
             self._entry(thing)
             raise NotFound(f"{thing} has no file {name!r}") from None
 

@@ -29,15 +29,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs, te
 from labs import start_lab  # noqa: E402
 from test_platform_tds import THINGS, mesh_client  # noqa: E402
 
-ROLES = ["router", "iot-platform", "adapter"]  # the supervisor's children, in start order
-
-
 def lab_processes(pid: int) -> dict[str, psutil.Process]:
-    """The supervisor and its spawned children by role (the resource tracker, if any, aside)."""
+    """The supervisor and its children by the role each shows in `ps` (`twinmesh: <role>`); the
+    multiprocessing resource tracker, which has no role, is left out."""
     sup = psutil.Process(pid)
-    spawned = sorted((p for p in sup.children() if "spawn_main" in " ".join(p.cmdline())),
-                     key=lambda p: p.create_time())
-    return {"supervisor": sup, **dict(zip(ROLES, spawned))}
+    roles = {}
+    for p in sup.children():
+        title = " ".join(p.cmdline())
+        if title.startswith("twinmesh: "):
+            roles[title.removeprefix("twinmesh: ")] = p
+    return {"supervisor": sup, **roles}
 
 
 class Meter:

@@ -1,0 +1,244 @@
+"""Safe motion, measured: today's path-checked moves against the straight-interpolation moves of before.
+
+For each case (UR10 in `table-and-wall`, UR10 in the iot-lab corner with its safety wall, Panda in
+`table-and-wall` 25 cm closer to the wall), the same random targets (collision-free sampled
+end-effector positions, moved by up to 10 mm) are sent one after the other to two robot twins in
+their own worlds:
+
+- before: the check of the first release: inside the hull, neighbour collision probability <= 0.5,
+  an IK configuration free of collision; then a straight joint-space move that nobody checks;
+- now: `RobotTwin.move_to_cartesian` (the hull, IK candidates, collision, a densely checked straight
+  path or an OMPL-planned one within 1 s).
+
+Figures per case, side by side: acceptance rate; refusals by reason; false refusals (refused, yet a
+generous independent search finds a collision-free configuration and path from where the robot
+stood: many IK restarts, then OMPL with `--generous` seconds); unsafe acceptances (accepted paths
+that collide when re-checked ten times finer than the robot's own resolution, in a pybullet client
+of this script's own); planning time p50 / p99; and the collision checks per second the checker
+reaches. Nothing is asserted: it prints.
+
+    python tests/bench/bench_motion.py [--targets 1000] [--samples 20000] [--generous 10] [--case NAME ...]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, when run as a script
+
+from devices.lab import LAB, robot_scene  # noqa: E402
+from devices.robot import Base, RobotTwin, placed  # noqa: E402
+from devices.world import World  # noqa: E402
+from mesh.problem import Problem  # noqa: E402
+from tdgen.check import Workspace  # noqa: E402
+from tdgen.ik import solve, solve_many  # noqa: E402
+from tdgen.motion import STEP_MM, NoPath, PathChecker, find_path  # noqa: E402
+from tdgen.robot import Robot  # noqa: E402
+from tdgen.sampling import CollisionWorld, sample_workspace  # noqa: E402
+from tdgen.scene import Scene, build_into, load_scene  # noqa: E402
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    urdf: str
+    scene: Scene
+    base: Base
+
+
+def cases() -> list[Case]:
+    x, y, z, yaw = LAB.ur10_base
+    return [Case("ur10 table-and-wall", "ur10.urdf", load_scene("table-and-wall"), Base((0.0, 0.0, 0.625))),
+            Case("ur10 iot-lab", "ur10.urdf", robot_scene(LAB), Base((x, y, z), yaw)),
+            Case("panda table-and-wall", "franka_panda/panda.urdf", load_scene("table-and-wall"),
+                 Base((0.0, 0.25, 0.625)))]
+
+
+@dataclass
+class Tally:
+    accepted: int = 0
+    refused: dict[str, int] = field(default_factory=dict)
+    false_refusals: int = 0
+    refusals_verified: int = 0
+    unsafe: int = 0
+    planned: int = 0
+    ms: list[float] = field(default_factory=list)
+
+    def refuse(self, reason: str) -> None:
+        self.refused[reason] = self.refused.get(reason, 0) + 1
+
+
+def old_move(twin: RobotTwin, workspace: Workspace, target: np.ndarray) -> tuple[str, np.ndarray | None]:
+    """The first release's decision: hull, probability <= 0.5, a collision-free IK configuration; straight."""
+    check = workspace.check(target, twin.k, twin.radius_mm, 0.5)
+    if not check.inside:
+        return "outside-workspace", None
+    if not check.ok:
+        return "collision-risk", None
+    goal_m = target / 1000.0
+    best = None
+    for attempt in range(5):
+        result = solve(twin.fk, goal_m, seed=twin.q if attempt == 0 else None, rng=attempt)
+        if not result.ok:
+            if attempt == 0:
+                return "unreachable", None
+            continue
+        if not twin._collides(result.q):
+            best = result.q
+            break
+    if best is None:
+        return "collision-risk", None
+    return "accepted", best
+
+
+def generous(robot: Robot, checker: PathChecker, start: np.ndarray, target_mm: np.ndarray, budget: float) -> bool:
+    """Is there a collision-free configuration for the target and a path to it from `start`?"""
+    seeds = np.random.default_rng(99).uniform(robot.lows(), robot.highs(), (64, len(robot.joints)))
+    seeds[0] = start
+    result = solve_many(robot, np.repeat((target_mm / 1000.0)[None], 64, axis=0), seeds, max_restarts=200)
+    free = [q for q in result.q[result.ok] if checker.free(q)]
+    if not free:
+        return False
+    free.sort(key=lambda q: float(np.abs(q - start).max()))
+    try:
+        find_path(checker, start, free[:8], robot.lows(), robot.highs(), budget)
+        return True
+    except NoPath:
+        return False
+
+
+def teleport(twin: RobotTwin, q: np.ndarray) -> None:
+    twin.world.run(lambda: twin._apply(q))
+
+
+def checks_per_second(checker: PathChecker, robot: Robot, n: int = 3000) -> float:
+    qs = np.random.default_rng(5).uniform(robot.lows(), robot.highs(), (n, len(robot.joints)))
+    t0 = time.perf_counter()
+    for q in qs:
+        checker.free(q)
+    return n / (time.perf_counter() - t0)
+
+
+def run_case(case: Case, n_targets: int, samples: int, budget: float, verify: int) -> tuple[Tally, Tally, float]:
+    robot = Robot.load(case.urdf)
+    scene = placed(case.scene, case.base)
+    t0 = time.perf_counter()
+    sampled = sample_workspace(robot, scene, samples, seed=0, workers=2)
+    workspace = Workspace(sampled.positions, sampled.collision)
+    print(f"\n## {case.name}: {samples} samples in {time.perf_counter() - t0:.1f} s, "
+          f"{(~sampled.collision).mean():.0%} collision-free", flush=True)
+    rng = np.random.default_rng(1)
+    free = sampled.positions[~sampled.collision]
+    targets = free[rng.choice(len(free), n_targets, replace=len(free) < n_targets)]
+    targets = targets + rng.uniform(-10, 10, targets.shape)
+
+    referee = PathChecker(CollisionWorld(robot, scene), step_mm=STEP_MM / 10)
+    generous_checker = PathChecker(CollisionWorld(robot, scene))
+    rate = checks_per_second(generous_checker, robot)
+    tallies = {}
+    for label in ("before", "now"):
+        world = World(speed=None)
+        build_into(case.scene, world.client)
+        world.start()
+        twin = RobotTwin(world, robot, "bench", case.base, case.scene)
+        twin.set_workspace(workspace)
+        tally = Tally()
+        refused_at: list[tuple[np.ndarray, np.ndarray]] = []
+        t0 = time.perf_counter()
+        for target in targets:
+            start = twin.q.copy()
+            if label == "before":
+                t = time.perf_counter()
+                verdict, goal = old_move(twin, workspace, target)
+                tally.ms.append((time.perf_counter() - t) * 1000)
+                if goal is None:
+                    tally.refuse(verdict)
+                    refused_at.append((start, target))
+                    continue
+                tally.accepted += 1
+                path = np.array([start, goal])
+                teleport(twin, goal)
+            else:
+                try:
+                    plan = twin.plan_cartesian(target)
+                except Problem as p:
+                    tally.refuse(p.reason or p.slug)
+                    refused_at.append((start, target))
+                    continue
+                tally.accepted += 1
+                tally.ms.append(plan.path.planning_ms)
+                tally.planned += plan.path.method == "planned"
+                path = plan.path.waypoints
+                teleport(twin, plan.q)
+            if not (referee.free(path[-1]) and referee.path_free(path)):
+                tally.unsafe += 1
+        moved = time.perf_counter() - t0
+        for start, target in (refused_at if verify <= 0 else
+                              [refused_at[i] for i in np.random.default_rng(3).permutation(len(refused_at))[:verify]]):
+            tally.refusals_verified += 1
+            tally.false_refusals += generous(robot, generous_checker, start, target, budget)
+        print(f"  {label}: {n_targets} targets in {moved:.1f} s; {tally.refusals_verified} refusals re-searched",
+              flush=True)
+        twin.close()
+        world.close()
+        tallies[label] = tally
+    referee.world.close()
+    generous_checker.world.close()
+    return tallies["before"], tallies["now"], rate
+
+
+def report(case: Case, before: Tally, now: Tally, n: int, rate: float, budget: float) -> None:
+    def pct(k: int, of: int) -> str:
+        return f"{k} ({k / of:.1%})" if of else "0"
+
+    def false(t: Tally) -> str:
+        total = sum(t.refused.values())
+        if not t.refusals_verified:
+            return "0"
+        share = t.false_refusals / t.refusals_verified
+        return (f"{t.false_refusals} of {t.refusals_verified} re-searched: ~{share * total:.0f} "
+                f"({share * total / n:.1%} of targets)")
+
+    rows = [
+        ("accepted", pct(before.accepted, n), pct(now.accepted, n)),
+        ("refused by reason", ", ".join(f"{k} {v}" for k, v in sorted(before.refused.items())) or "-",
+         ", ".join(f"{k} {v}" for k, v in sorted(now.refused.items())) or "-"),
+        (f"false refusals (IK restarts + OMPL {budget:g} s)", false(before), false(now)),
+        (f"unsafe acceptances (re-checked at {STEP_MM / 10:g} mm)", pct(before.unsafe, max(before.accepted, 1)),
+         pct(now.unsafe, max(now.accepted, 1))),
+        ("planned (not straight)", "-", pct(now.planned, max(now.accepted, 1))),
+        ("decision time p50 / p99 (ms)", _p(before.ms), _p(now.ms)),
+    ]
+    print(f"\n### {case.name}, {n} targets; collision checks: {rate:,.0f} per second\n")
+    print("| | before (straight, unchecked) | now (checked path) |\n|---|---|---|")
+    for name, a, b in rows:
+        print(f"| {name} | {a} | {b} |")
+
+
+def _p(ms: list[float]) -> str:
+    return f"{np.percentile(ms, 50):.1f} / {np.percentile(ms, 99):.1f}" if ms else "-"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--targets", type=int, default=1000)
+    ap.add_argument("--samples", type=int, default=20000)
+    ap.add_argument("--generous", type=float, default=10.0, help="OMPL seconds of the generous search")
+    ap.add_argument("--verify", type=int, default=0,
+                    help="re-search at most this many refusals per run (0: all of them)")
+    ap.add_argument("--case", action="append", help="only these cases (by name)")
+    args = ap.parse_args()
+    for case in cases():
+        if args.case and case.name not in args.case:
+            continue
+        before, now, rate = run_case(case, args.targets, args.samples, args.generous, args.verify)
+        report(case, before, now, args.targets, rate, args.generous)
+
+
+if __name__ == "__main__":
+    main()
