@@ -54,4 +54,7 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
         stack.callback(lab.world.close)  # runs first on the way out: pending motions fail, handlers answer
         log.info("iot-lab: platform, ur10, lights, pan-tilts and the world on the mesh (speed %s)",
                  "max" if speed is None else f"{speed:g}")
+        lab.world.on_death(stop.set)  # a dead simulation ends the process: the supervisor sees it
         stop.wait()
+        if not lab.world.stepping:
+            raise SystemExit("the simulation stopped stepping; see the log above")

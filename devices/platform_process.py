@@ -37,4 +37,7 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
         stack.callback(platform.close)  # runs first on the way out: pending motions fail, handlers answer
         log.info("iot-platform: %d devices and the world on the mesh (speed %s)", len(PLATFORM_DEVICES),
                  "max" if speed is None else f"{speed:g}")
+        platform.world.on_death(stop.set)  # a dead simulation ends the process: the supervisor sees it
         stop.wait()
+        if not platform.world.stepping:
+            raise SystemExit("the simulation stopped stepping; see the log above")

@@ -58,7 +58,8 @@ _NOTES = {
     "infrared": "Twin: objectPresence is a beam reading: writes are refused (422). detectedObject fires on "
                 "every change of objectPresence (true: an object arrived, false: it left), with the new "
                 "value as data.",
-    "uarm": "Twin: location ranges are the arm's whole reach (the arm can stand at a homeLoc outside the "
+    "uarm": "Twin: location is read-only (use goTo; the real TD says writable, but no write moves the arm). "
+            "Location ranges are the arm's whole reach (the arm can stand at a homeLoc outside the "
             "goTo box and passes outside it between two points). turnRight ignores its input's y and turns "
             "one step (10 mm) right. reset moves nothing (a twin never loses its location).",
     "dobot": "Twin: one action at a time; further invocations wait for it (not limited to 3).",
@@ -84,6 +85,7 @@ def _twin_td_json(slug: str) -> bytes:
     elif slug == "uarm":
         for axis, (lo, hi) in LOCATION_RANGE.items():
             td["properties"]["location"]["properties"][axis].update(minimum=lo, maximum=hi)
+        td["properties"]["location"]["readOnly"] = True  # where the joints put it: goTo moves it, no write
         notes.append(_NOTES["uarm"])
     elif slug == "dobot":
         notes.append(_NOTES["dobot"])

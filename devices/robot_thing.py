@@ -299,7 +299,10 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
         stack.enter_context(RobotThing(session, settings, twin, samples=samples, seed=seed))
         stack.callback(world.close)  # first on the way out: pending motions fail, their handlers answer
         log.info("%s: %s on the mesh (speed %s)", twin.name, robot.name, "max" if speed is None else f"{speed:g}")
+        world.on_death(stop.set)
         stop.wait()
+        if not world.stepping:
+            raise SystemExit(f"{twin.name}: the simulation stopped stepping; see the log above")
 
 
 def _speed(value: str) -> float | None:

@@ -26,6 +26,7 @@ import numpy as np
 import pybullet as pb
 
 from mesh.problem import Unavailable
+from mesh.settings import MAX_SPEED, MIN_SPEED
 
 log = logging.getLogger(__name__)
 
@@ -165,6 +166,7 @@ class World:
         self._queue_lock = threading.Lock()  # no command slips in after the queue was drained
         self._stop = False
         self._closed = False
+        self._death_hooks: list[Callable[[], None]] = []
 
     @property
     def speed(self) -> float | None:
@@ -175,9 +177,21 @@ class World:
     def speed(self, value: float | str | None) -> None:
         if value == "max":
             value = None
-        if value is not None and not (isinstance(value, (int, float)) and value > 0):
-            raise ValueError(f"speed must be a number > 0, or None / 'max' for as fast as possible; got {value!r}")
+        if value is not None and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                      and MIN_SPEED <= value <= MAX_SPEED):
+            raise ValueError(f"speed must be within {MIN_SPEED:g}..{MAX_SPEED:g}, or None / 'max' for as fast as "
+                             f"possible; got {value!r}")
         self._speed = None if value is None else float(value)
+
+    @property
+    def stepping(self) -> bool:
+        """Whether the simulation steps (its thread runs): a health check for the world's Thing."""
+        return self._thread is not None and self._thread.is_alive() and not self._stop
+
+    def on_death(self, hook: Callable[[], None]) -> None:
+        """`hook()` if the stepping thread ever dies (on that thread): e.g. end the process so that the
+        supervisor sees it, rather than a process that answers 503 forever."""
+        self._death_hooks.append(hook)
 
     # --- lifecycle ----------------------------------------------------------------------------
     def start(self) -> "World":
@@ -344,7 +358,7 @@ class World:
                 if now - next_wall > MAX_LAG:
                     next_wall = now
                 while not self._stop and (left := next_wall - time.monotonic()) > 0:
-                    if self._wake.wait(left):
+                    if self._wake.wait(min(left, 0.25)):  # short waits: no timeout ever overflows
                         self._wake.clear()
                         self._run_commands()
                         if self._speed is None and not self.idle():
@@ -354,6 +368,8 @@ class World:
             with self._queue_lock:
                 self._stop = True
             self._fail_pending(WorldClosed(f"the simulation stopped: {exc}"))
+            for hook in self._death_hooks:
+                _call_logged(hook, ())
 
     def _run_commands(self) -> None:
         while True:

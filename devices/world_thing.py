@@ -36,8 +36,9 @@ import msgspec
 
 from devices.obstacles import OBSTACLE_SCHEMA, Obstacle
 from devices.scene_description import pose as _pose
-from devices.world import Snapshot, World
+from devices.world import MAX_SPEED, MIN_SPEED, Snapshot, World
 from mesh.keys import Keys
+from mesh.problem import BadInput
 from mesh.scene_model import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription
 from mesh.td import ThingDescription, decode_td, thing_id
 from mesh.thing import ExposedThing
@@ -108,8 +109,11 @@ def world_td(scene: SimulatedScene, version: int = 0) -> ThingDescription:
             "simTime": {"title": "Simulated time", "description": "Seconds of simulated time since the world "
                         "started.", "type": "number", "minimum": 0, "unit": "s", "readOnly": True},
             "speed": {"title": "Simulation speed", "description": "Simulated seconds per wall second; 0 means "
-                      "as fast as the CPU allows (twinmesh up --speed max).", "type": "number", "minimum": 0,
-                      "observable": True},
+                      f"as fast as the CPU allows (twinmesh up --speed max); otherwise {MIN_SPEED:g} to "
+                      f"{MAX_SPEED:g}.", "type": "number", "minimum": 0, "maximum": MAX_SPEED, "observable": True},
+            "stepping": {"title": "Simulation running", "description": "Whether the simulation steps. If it ever "
+                         "stops, the world's process ends and every device of it leaves the mesh.",
+                         "type": "boolean", "readOnly": True},
         },
         "actions": {
             "reset": {"title": "Reset the scene", "description": "Every cube back in the warehouse (original "
@@ -247,6 +251,7 @@ class WorldThing:
         t.on_read(POSES_PROPERTY, lambda: to_poses(self.world.snapshot()))
         t.on_read("simTime", lambda: self.world.time)
         t.on_read("speed", lambda: self.world.speed or 0.0).on_write("speed", self._set_speed)
+        t.on_read("stepping", lambda: self.world.stepping)
         t.on_action("reset", lambda _: self.reset())
         t.on_action("resetWarehouse", lambda v: self.reset(v["cubes"]))
         t.on_file(SCENE_FILE, lambda: self._scene_json, "application/json")
@@ -292,6 +297,9 @@ class WorldThing:
             (self._throttle.flush if now else self._throttle.offer)(to_poses(snap))  # in order
 
     def _set_speed(self, value: float) -> None:
+        if value != 0 and not MIN_SPEED <= value <= MAX_SPEED:
+            raise BadInput(f"speed: must be 0 (as fast as possible) or within {MIN_SPEED:g}..{MAX_SPEED:g}, "
+                           f"not {value:g}")
         self.world.speed = None if value == 0 else float(value)
         self.thing.emit_property_change("speed", self.world.speed or 0.0)
 

@@ -243,9 +243,21 @@ def adapter(settings: MeshSettings, http: str, auth: str | None) -> None:
 
 @main.command()
 @click.argument("path", required=False, type=click.Path(dir_okay=False))
+@click.option("--repair", is_flag=True, help="Make the recording at PATH valid again (one cut short by a crash "
+              "or kill -9 has no footer); the original is kept as PATH.broken.")
 @click.pass_obj
-def record(settings: MeshSettings, path: str | None) -> None:
+def record(settings: MeshSettings, path: str | None, repair: bool) -> None:
     """Record the mesh to a Rerun .rrd file until Ctrl-C [default: recordings/twinmesh-DATE-TIME.rrd]."""
+    if repair:
+        from mesh.recording_repair import RepairError, repair_recording
+
+        if path is None:
+            raise click.UsageError("--repair needs the PATH of the recording")
+        try:
+            click.echo(repair_recording(path))
+        except RepairError as e:
+            raise click.ClickException(str(e)) from None
+        return
     _run_foreground(settings, RECORDER, path=path)
 
 

@@ -13,6 +13,7 @@ from typing import Any, Callable
 import msgspec
 
 from mesh.keys import Keys
+from mesh.payload import JSON_ERRORS
 from mesh.problem import BadGateway, NotFound, Problem, TimedOut, Unavailable
 from mesh.settings import MeshSettings
 from mesh.td import AffordanceKind, ThingDescription, decode_td
@@ -131,5 +132,5 @@ def _json(payload: bytes) -> Any:
         return None
     try:
         return msgspec.json.decode(payload)
-    except msgspec.DecodeError:
+    except JSON_ERRORS:
         raise BadGateway(f"a peer replied with invalid JSON: {payload[:100]!r}") from None

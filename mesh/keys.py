@@ -9,8 +9,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 DEFAULT_PREFIX = "wot"
-SLUG = re.compile(r"^[a-z0-9]+(?:-[a-z0-9]+)*$")
-NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+SLUG = re.compile(r"^[a-z0-9]+(?:-[a-z0-9]+)*\Z")  # \Z, not $: "name\n" is no slug
+NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*\Z")
 
 Kind = Literal["properties", "actions", "events", "files"]
 KINDS: tuple[Kind, ...] = ("properties", "actions", "events", "files")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 import logging
 import multiprocessing as mp
+import os
 import signal
 import threading
 import time
@@ -69,7 +70,22 @@ def set_title(role: str) -> None:
     setproctitle(f"twinmesh: {role}")
 
 
-def _child(spec: ProcessSpec, settings_json: bytes, log_level: int) -> None:
+def die_with_parent(parent: int) -> None:
+    """Ask Linux to send SIGTERM to this process when its parent dies, however it dies (`kill -9`
+    included): no orphan keeps the lab's ports after `up` is gone. Elsewhere a no-op."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # it died before we asked
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _child(spec: ProcessSpec, settings_json: bytes, log_level: int, parent: int) -> None:
+    die_with_parent(parent)
     set_title(spec.role or spec.name)
     logging.basicConfig(level=log_level, format=f"%(asctime)s {spec.name} %(levelname)s %(message)s")
     stop = install_stop_handlers()
@@ -94,7 +110,8 @@ class Supervisor:
         payload = msgspec.json.encode(self.settings)
         level = logging.getLogger().getEffectiveLevel()
         for spec in self.specs:
-            p = self._ctx.Process(target=_child, args=(spec, payload, level), name=spec.name, daemon=False)
+            p = self._ctx.Process(target=_child, args=(spec, payload, level, os.getpid()), name=spec.name,
+                                  daemon=False)
             p.start()
             self.procs[spec.name] = p
 

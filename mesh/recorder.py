@@ -36,12 +36,13 @@ from mesh import rerun_mapping as mapping
 from mesh.consumer import MeshClient
 from mesh.directory import Directory
 from mesh.keys import Keys
-from mesh.problem import Problem
+from mesh.problem import BadInput, Problem
 from mesh.rerun_robots import JOINTS_PROPERTY, RobotDrawer, WorkspaceFiles, is_robot, read_robot
 from mesh.rerun_scene import SceneDrawer, SceneFiles, lab_blueprint
 from mesh.scene_model import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription, TwinDescription
 from mesh.settings import MeshSettings
 from mesh.td import ThingDescription, decode_td
+from mesh.validate import validate
 
 log = logging.getLogger(__name__)
 
@@ -314,6 +315,7 @@ class _Writer(threading.Thread):
         self.keys = keys
         self.inbox = inbox
         self.tds: dict[str, ThingDescription] = {}
+        self.dropped: dict[str, int] = {}  # publications not recorded (not allowed by their TD), per affordance
         self.seq = 0
         self.scene = SceneDrawer(rec)
         self.robots = RobotDrawer(rec, self.scene)
@@ -424,6 +426,26 @@ class _Writer(threading.Thread):
                 self._styled.add(e.path)
             self.rec.log(e.path, e.archetype, static=e.static)
 
+    def _allowed(self, td: ThingDescription | None, thing: str, kind: str, name: str, value: Any) -> bool:
+        """Only values the Thing's TD allows are recorded (anyone on the mesh can publish): a value of an
+        unknown Thing or affordance, or one that breaks its schema, is dropped, counted, logged once."""
+        affordance = td.affordance(kind, name) if td is not None else None  # type: ignore[arg-type]
+        why = "no TD for it" if affordance is None else None
+        if why is None:
+            schema = affordance if kind == "properties" else affordance.data
+            try:
+                if value is not None or kind == "properties":
+                    validate(value, schema, name)
+            except BadInput as e:
+                why = e.detail
+        if why is None:
+            return True
+        key = f"{thing}/{kind}/{name}"
+        self.dropped[key] = self.dropped.get(key, 0) + 1
+        if self.dropped[key] == 1:
+            log.warning("not recording a publication on %s (%s); further ones are dropped silently", key, why)
+        return False
+
     def entries(self, message: Message) -> list[mapping.Entry]:
         if message.kind in ("join", "leave"):
             if message.kind == "leave":
@@ -441,6 +463,9 @@ class _Writer(threading.Thread):
             return mapping.td_entries(parsed.thing, td)
         value = msgspec.json.decode(message.payload) if message.payload else None
         td = self.tds.get(parsed.thing)
+        if parsed.kind in ("properties", "events") and not self._allowed(td, parsed.thing, parsed.kind,
+                                                                         parsed.name, value):
+            return []
         if parsed.kind == "properties":
             schema = td.properties.get(parsed.name) if td else None
             return mapping.property_entries(parsed.thing, parsed.name, value, schema)

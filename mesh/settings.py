@@ -9,6 +9,7 @@ import msgspec
 from mesh.keys import Keys
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+MIN_SPEED, MAX_SPEED = 0.01, 1000.0  # sane simulation speed factors: slower freezes a lab, faster is `max`
 Mode = Literal["peer", "client", "router"]
 
 
@@ -57,6 +58,6 @@ def parse_speed(value: str) -> float | None:
         f = float(value)
     except ValueError:
         raise ValueError(f"speed must be a positive number or 'max', not {value!r}") from None
-    if not 0 < f < float("inf"):
-        raise ValueError("speed must be a positive number or 'max'")
+    if not MIN_SPEED <= f <= MAX_SPEED:
+        raise ValueError(f"speed must be within {MIN_SPEED:g}..{MAX_SPEED:g}, or 'max', not {value!r}")
     return f

@@ -16,7 +16,8 @@ from typing import Any, Callable
 
 import msgspec
 
-from mesh.keys import Keys, check_name, check_slug
+from mesh.keys import NAME, Keys, check_name, check_slug
+from mesh.payload import decode_json
 from mesh.problem import BadInput, NotAllowed, NotFound, Problem
 from mesh.td import ThingDescription, zenoh_forms
 from mesh.validate import validate
@@ -40,14 +41,6 @@ class ActionCall(msgspec.Struct, omit_defaults=True):
     error: str | None = None
     status: int = 200
     seconds: float = 0.0
-
-
-def decode_json(payload: bytes, what: str) -> Any:
-    """JSON from a payload, or BadInput naming what was malformed."""
-    try:
-        return msgspec.json.decode(payload)
-    except msgspec.DecodeError as e:
-        raise BadInput(f"{what} is not valid JSON: {e}") from None
 
 
 class ExposedThing:
@@ -128,8 +121,19 @@ class ExposedThing:
         self._need("events", event)
         self._publish(self.keys.event(self.name, event), data)
 
+    def _truthful(self, td: ThingDescription) -> ThingDescription:
+        """The TD as the handlers serve it: a property nobody writes is `readOnly` (its forms then offer
+        no writeproperty), one nobody reads `writeOnly`, so a TD never offers what no handler does."""
+        props = {}
+        for name, p in td.properties.items():
+            read_only = True if name not in self._writes else p.readOnly
+            write_only = True if name not in self._reads else p.writeOnly
+            props[name] = msgspec.structs.replace(p, readOnly=read_only, writeOnly=write_only)
+        return msgspec.structs.replace(td, properties=props)
+
     def update_td(self, td: ThingDescription) -> None:
         """Replace the TD (e.g. a regenerated robot TD) and tell observers of `<thing>/td`."""
+        td = self._truthful(td)
         self.td = td
         self._td_json = zenoh_forms(td, self.keys.prefix, self.name).to_json()
         if self._exposed:
@@ -149,15 +153,19 @@ class ExposedThing:
         missing += [a for a in self.td.actions if a not in self._actions]
         if missing:
             raise ValueError(f"{self.name}: no handler for {', '.join(missing)}")
+        self.td = self._truthful(self.td)
         self._td_json = zenoh_forms(self.td, self.keys.prefix, self.name).to_json()
         k, s = self.keys, self.session
-        self._declared.append(s.declare_queryable(k.td(self.name), self._dispatch(self._answer_td)))
+        def serve(key: str, answer: Callable[..., bytes | None], *args: Any, acts: str = "") -> None:
+            self._declared.append(s.declare_queryable(key, self._dispatch(key, acts, answer, *args)))
+
+        serve(k.td(self.name), self._answer_td)
         for p in self.td.properties:
-            self._declared.append(s.declare_queryable(k.property(self.name, p), self._dispatch(self._answer_property, p)))
+            serve(k.property(self.name, p), self._answer_property, p, acts="with-payload")
         for a in self.td.actions:
-            self._declared.append(s.declare_queryable(k.action(self.name, a), self._dispatch(self._answer_action, a)))
+            serve(k.action(self.name, a), self._answer_action, a, acts="always")
         for f in self._files:
-            self._declared.append(s.declare_queryable(k.file(self.name, f), self._dispatch(self._answer_file, f)))
+            serve(k.file(self.name, f), self._answer_file, f)
         if self._file_lookup is not None:
             self._declared.append(s.declare_queryable(k.file(self.name, "*"), self._any_file))
         self._exposed = True
@@ -187,21 +195,30 @@ class ExposedThing:
         self.destroy()
 
     # --- query handling (worker threads) ----------------------------------------------------
-    def _dispatch(self, answer: Callable[..., bytes | None], *args: Any):
+    def _dispatch(self, key: str, acts: str, answer: Callable[..., bytes | None], *args: Any):
+        """A queryable's callback for the concrete `key`; `acts` says when a query changes something
+        ("with-payload": writes, "always": actions), which only a query on exactly `key` may do."""
         def callback(query) -> None:  # runs on a Zenoh thread: never block here
-            self._pool.submit(self._serve, query, answer, args)
+            self._pool.submit(self._serve, query, key, acts, answer, args)
         return callback
 
     def _any_file(self, query) -> None:  # Zenoh thread: the file name is the last chunk of the key
-        name = str(query.key_expr).rsplit("/", 1)[-1]
-        self._pool.submit(self._serve, query, lambda _payload: self._file_lookup(name), ())
+        key = str(query.key_expr)
+        name = key.rsplit("/", 1)[-1]
+        if not NAME.match(name):  # a wildcard query for files: answer for no name rather than for "**"
+            return
+        self._pool.submit(self._serve, query, key, "", lambda _payload: self._file_lookup(name), ())
 
-    def _serve(self, query, answer, args) -> None:
+    def _serve(self, query, key: str, acts: str, answer, args) -> None:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else None
+            asked = str(query.key_expr)
+            if asked != key and (acts == "always" or (acts == "with-payload" and payload is not None)):
+                raise BadInput(f"{key}: writes and actions run only for a query on their exact key, not on "
+                               f"{asked}")
             out = answer(payload, *args)
             out, encoding = out if isinstance(out, tuple) else (out, JSON_ENCODING)
-            query.reply(query.key_expr, out if out is not None else b"", encoding=encoding)
+            query.reply(key, out if out is not None else b"", encoding=encoding)  # the concrete key answers
         except Problem as p:
             query.reply_err(p.to_json(), encoding="application/problem+json")
         except Exception as e:  # a device bug must still answer, not time out
@@ -229,6 +246,8 @@ class ExposedThing:
     def _answer_action(self, payload: bytes | None, action: str) -> bytes | None:
         aff = self.td.actions[action]
         value = None
+        if aff.input is None and payload is not None and payload.strip() not in (b"", b"null"):
+            raise BadInput(f"action {action!r} takes no input; send none (or null)")
         if aff.input is not None:
             if not payload:
                 raise BadInput(f"action {action!r} needs an input")

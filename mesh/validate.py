@@ -6,18 +6,23 @@ lengths, pattern, items, properties/required). A violation raises `BadInput` nam
 """
 from __future__ import annotations
 
-import math
 import re
+import sys
 from typing import Any
 
 from mesh.problem import BadInput
 from mesh.td import DataSchema
 
+def _double(v: Any) -> bool:
+    """A JSON number a device can take: an int or float within the range of a double (a 400-digit
+    integer is valid JSON, but no device computes with it)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= sys.float_info.max
+
+
 _TYPES = {
     "boolean": lambda v: isinstance(v, bool),
-    "integer": lambda v: (isinstance(v, int) and not isinstance(v, bool))
-    or (isinstance(v, float) and math.isfinite(v) and v.is_integer()),
-    "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
+    "integer": lambda v: _double(v) and (isinstance(v, int) or float(v).is_integer()),
+    "number": _double,
     "string": lambda v: isinstance(v, str),
     "array": lambda v: isinstance(v, list),
     "object": lambda v: isinstance(v, dict),

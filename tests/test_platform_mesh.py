@@ -216,3 +216,13 @@ def test_an_idle_world_at_speed_max_does_not_burn_a_core(lab, http):
     time.sleep(2.0)
     total = sum(p.cpu_percent(None) for p in procs)
     assert total < 50, f"the idle lab used {total:.0f} % of a core"
+
+
+@pytest.mark.parametrize("speed, status", [(1e-13, 400), (1e-9, 400), (0.001, 400), (1e9, 400), (-1, 400)])
+def test_a_speed_that_would_freeze_or_kill_the_simulation_is_refused(http, speed, status):
+    """1e-13 used to kill the stepping thread ("timestamp out of range") and 1e-9 froze every motion."""
+    r = http.put("/world/properties/speed", json=speed)
+    assert r.status_code == status and "speed" in r.json()["detail"], r.text
+    assert http.get("/world/properties/speed").json() == 0  # still `max`, as the lab was started
+    assert http.get("/world/properties/stepping").json() is True
+    assert http.post("/uarm/actions/goTo", json={"x": 150, "y": 0, "z": 80}).status_code == 204  # still moving

@@ -45,6 +45,9 @@ ALLOWED = {
     # it reads, so the twin declares the arm's whole reach (devices.platform_things.LOCATION_RANGE)
     "uarm/properties/location/properties/[xyz]/minimum": "location: the arm's whole reach",
     "uarm/properties/location/properties/[xyz]/maximum": "location: the arm's whole reach",
+    # a TD offers only what a handler serves (mesh.thing.ExposedThing._truthful): the twin's location is
+    # where its joints put it, so it is read-only (the real TD says writable, yet no write could move it)
+    "uarm/properties/location/readOnly": "location: read-only, as the twin serves it",
 }
 IGNORED = {"forms", "description", "title"}  # titles are the real ones; descriptions carry twin notes
 

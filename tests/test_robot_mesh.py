@@ -256,7 +256,7 @@ def test_eval_ik_reaches_20_random_targets_of_the_ur10_within_a_hundredth_of_a_m
     rows = list(csv.DictReader(out.open()))
     assert len(rows) == 20 and all(row["status"] == "reached" for row in rows), rows
     errors = [float(row["error_mm"]) for row in rows]
-    assert max(errors) <= TOL_MM
+    assert max(errors) <= TOL_MM, [row for row in rows if float(row["error_mm"]) > TOL_MM]
     assert "20 targets: 20 reached, 0 refused" in r.stdout
     print(f"\neval ik (Zenoh): {r.stdout.strip()}")
     via = lab.cli("eval", "ik", "--thing", "ur10", "--targets", str(path), "--via", lab.http, timeout=300)

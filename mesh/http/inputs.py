@@ -12,7 +12,7 @@ import msgspec
 from starlette.requests import Request
 
 from mesh.http.problems import TooLarge, UnsupportedMediaType
-from mesh.problem import BadInput
+from mesh.payload import decode_json
 from mesh.td import DataSchema
 from mesh.validate import validate
 
@@ -47,10 +47,7 @@ async def read_input(request: Request, schema: DataSchema | None, path: str) -> 
     body = await read_body(request)
     if not body.strip():
         return ABSENT
-    try:
-        value = msgspec.json.decode(body)
-    except msgspec.DecodeError as e:
-        raise BadInput(f"{path}: the body is not valid JSON ({e})") from None
+    value = decode_json(body, f"{path}: the body")
     validate(value, schema, path)
     return value
 

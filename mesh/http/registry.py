@@ -32,9 +32,11 @@ from mesh.directory import Directory
 from mesh.http.observers import Change, Feed, Observers
 from mesh.http.problems import unavailable
 from mesh.http.tdrewrite import with_types
-from mesh.problem import BadGateway, NotFound, Problem, Unavailable
+from mesh.payload import JSON_ERRORS, decode_json
+from mesh.problem import BadGateway, BadInput, NotFound, Problem, Unavailable
 from mesh.settings import MeshSettings
 from mesh.td import ThingDescription, decode_td
+from mesh.validate import validate
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +59,7 @@ class ThingEntry:
     samples: dict[str, int] = field(default_factory=dict)  # publications seen per property
     epoch: int = 0  # bumped around each write/invoke through the adapter
     rendered: dict[str, bytes] = field(default_factory=dict)  # HTTP TD JSON by base URL
+    dropped: dict[str, int] = field(default_factory=dict)  # publications refused per affordance (forged, broken)
 
 
 class Registry:
@@ -165,13 +168,44 @@ class Registry:
         if entry is None or not entry.alive:
             return
         if kind == "td":
-            self._set_td(entry, payload)
+            # a published TD is only a hint that it changed: anyone on the mesh can put one, so the
+            # TD is asked of the Thing itself (its queryable), as on a join
+            entry.generation += 1
+            if entry.fetch:
+                entry.fetch.cancel()
+            entry.fetch = asyncio.ensure_future(self._fetch_td(entry, entry.generation))
+            return
+        why = self._invalid(entry, kind, name, payload)
+        if why is not None:
+            key = f"{kind}/{name}"
+            entry.dropped[key] = entry.dropped.get(key, 0) + 1
+            if entry.dropped[key] == 1:
+                log.warning("%s: dropped a publication on %s that its TD does not allow (%s); further ones are "
+                            "dropped silently", thing, key, why)
             return
         if kind == "properties":
             entry.samples[name] = entry.samples.get(name, 0) + 1
             if self._observable(entry, name):
                 entry.values[name] = _Cached(payload, time.monotonic())
         self.observers.publish(thing, kind, Change(name, payload, time.time()))
+
+    @staticmethod
+    def _invalid(entry: ThingEntry, kind: str, name: str, payload: bytes) -> str | None:
+        """Why a published value must not be served (None when it may): no TD to check it with, an
+        affordance the TD lacks, a payload that is not JSON or breaks the affordance's schema."""
+        if entry.td is None:
+            return "its TD is not known yet"
+        affordance = entry.td.affordance(kind, name)  # type: ignore[arg-type]
+        if affordance is None:
+            return "no such affordance"
+        schema = affordance if kind == "properties" else affordance.data
+        try:
+            value = decode_json(payload, f"{kind}/{name}") if payload else None
+            if payload or schema is not None and kind == "properties":
+                validate(value, schema, name)
+        except BadInput as e:
+            return e.detail
+        return None
 
     async def _fetch_td(self, entry: ThingEntry, generation: int) -> None:
         """A fresh peer's queryables may take a moment to reach us: retry with backoff."""
@@ -194,7 +228,7 @@ class Registry:
     def _set_td(self, entry: ThingEntry, payload: bytes) -> None:
         try:
             entry.td, entry.td_error = with_types(decode_td(payload)), None
-        except (msgspec.ValidationError, msgspec.DecodeError) as e:
+        except (msgspec.ValidationError, *JSON_ERRORS) as e:
             entry.td_error = f"{entry.name} serves an invalid TD: {e}"
             log.warning(entry.td_error)
         entry.values.clear()

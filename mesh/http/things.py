@@ -13,6 +13,8 @@ TDs are `application/td+json` whatever the Accept header says (node-wot asks wit
 """
 from __future__ import annotations
 
+import re
+
 import msgspec
 from starlette.requests import Request
 from starlette.responses import Response
@@ -20,6 +22,7 @@ from starlette.routing import Route
 
 from mesh.http.context import base_url, registry, security, thing_name
 from mesh.http.tdrewrite import LD_JSON, TD_JSON, directory_td, http_td, served_id
+from mesh.keys import NAME
 from mesh.problem import BadInput, NotFound, Problem
 from mesh.td import JSON
 
@@ -49,7 +52,7 @@ def _page_arg(request: Request, name: str, minimum: int) -> int | None:
     raw = request.query_params.get(name)
     if raw is None:
         return None
-    if not raw.isdigit() or int(raw) < minimum:
+    if not re.fullmatch(r"[0-9]{1,9}", raw) or int(raw) < minimum:  # str.isdigit() takes '²', int() does not
         raise BadInput(f"{name} must be an integer >= {minimum}, not {raw!r}")
     return int(raw)
 
@@ -85,7 +88,10 @@ async def by_id(request: Request) -> Response:
 
 async def linked_file(request: Request) -> Response:
     thing = thing_name(request)
-    reply = await registry(request).file(thing, request.path_params["name"])
+    name = request.path_params["name"]
+    if not NAME.match(name):  # never a wildcard or reserved character into a key expression
+        raise NotFound(f"{thing} has no file {name!r} (file names are letters, digits, '_', '.', '-')")
+    reply = await registry(request).file(thing, name)
     return Response(reply.payload, media_type=reply.encoding or "application/octet-stream")
 
 
