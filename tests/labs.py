@@ -129,3 +129,15 @@ def start_lab(tmp: Path, scene: str | None = "lights", http: bool = True, things
         lab.stop()
         raise
     return lab
+
+
+def spawn_up(endpoint: str, log: Path, *args: str) -> subprocess.Popen:
+    """`twinmesh up ARGS` on `endpoint` in its own process group, output to `log` (no waiting)."""
+    return subprocess.Popen(twinmesh_cmd(endpoint, "up", *args), stdout=open(log, "wb"), stderr=subprocess.STDOUT,
+                            cwd=REPO, start_new_session=True)
+
+
+def wait_ready(endpoint: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    """`twinmesh wait` against `endpoint`, as a user's script does after `twinmesh up &`."""
+    return subprocess.run(twinmesh_cmd(endpoint, "wait", "--timeout", str(timeout)), capture_output=True, text=True,
+                          timeout=timeout + 30, cwd=REPO)

@@ -11,7 +11,7 @@ import httpx
 import psutil
 import pytest
 
-from labs import REPO, free_port, start_lab, twinmesh_cmd
+from labs import REPO, free_port, spawn_up, start_lab, twinmesh_cmd, wait_ready
 
 
 @pytest.fixture(scope="module")
@@ -72,11 +72,9 @@ def test_up_then_wait_then_a_command_works_without_sleeps(tmp_path):
     """The README's script: `twinmesh up & twinmesh wait && twinmesh ...`."""
     endpoint, http = f"tcp/127.0.0.1:{free_port()}", free_port()
     log = tmp_path / "up.log"
-    up = subprocess.Popen(twinmesh_cmd(endpoint, "up", "lights", "--http", f"127.0.0.1:{http}"),
-                          stdout=open(log, "wb"), stderr=subprocess.STDOUT, cwd=REPO, start_new_session=True)
+    up = spawn_up(endpoint, log, "lights", "--http", f"127.0.0.1:{http}")
     try:
-        r = subprocess.run(twinmesh_cmd(endpoint, "wait", "--timeout", "60"), capture_output=True, text=True,
-                           timeout=90, cwd=REPO)
+        r = wait_ready(endpoint)
         assert r.returncode == 0, r.stderr + log.read_text()
         assert subprocess.run(twinmesh_cmd(endpoint, "invoke", "light-left", "switchOn"), capture_output=True,
                               timeout=30, cwd=REPO).returncode == 0

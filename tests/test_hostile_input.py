@@ -12,7 +12,7 @@ import msgspec
 import psutil
 import pytest
 
-from labs import REPO, free_port, start_lab, twinmesh_cmd
+from labs import REPO, free_port, spawn_up, start_lab, twinmesh_cmd, wait_ready
 from test_recorder import RERUN, scalars, wait_for_line
 
 PROBLEM = "application/problem+json"
@@ -127,11 +127,9 @@ def test_a_forged_publication_is_not_served_and_a_forged_td_changes_nothing(lab,
 def test_killing_up_with_sigkill_leaves_no_orphan_and_the_ports_free(tmp_path):
     endpoint, port = f"tcp/127.0.0.1:{free_port()}", free_port()
     log = tmp_path / "up.log"
-    up = subprocess.Popen(twinmesh_cmd(endpoint, "up", "lights", "--http", f"127.0.0.1:{port}"),
-                          stdout=open(log, "wb"), stderr=subprocess.STDOUT, cwd=REPO, start_new_session=True)
+    up = spawn_up(endpoint, log, "lights", "--http", f"127.0.0.1:{port}")
     try:
-        assert subprocess.run(twinmesh_cmd(endpoint, "wait", "--timeout", "60"), capture_output=True,
-                              timeout=90, cwd=REPO).returncode == 0, log.read_text()
+        assert wait_ready(endpoint).returncode == 0, log.read_text()
         children = psutil.Process(up.pid).children(recursive=True)
         assert len(children) >= 4
         up.send_signal(signal.SIGKILL)
@@ -143,12 +141,9 @@ def test_killing_up_with_sigkill_leaves_no_orphan_and_the_ports_free(tmp_path):
             os.killpg(up.pid, signal.SIGKILL)  # whatever is left, if the test failed
         except ProcessLookupError:
             pass
-    again = subprocess.Popen(twinmesh_cmd(endpoint, "up", "lights", "--http", f"127.0.0.1:{port}"),
-                             stdout=open(tmp_path / "again.log", "wb"), stderr=subprocess.STDOUT, cwd=REPO,
-                             start_new_session=True)
+    again = spawn_up(endpoint, tmp_path / "again.log", "lights", "--http", f"127.0.0.1:{port}")
     try:
-        r = subprocess.run(twinmesh_cmd(endpoint, "wait", "--timeout", "60"), capture_output=True, text=True,
-                           timeout=90, cwd=REPO)
+        r = wait_ready(endpoint)
         assert r.returncode == 0, r.stderr + (tmp_path / "again.log").read_text()
     finally:
         os.killpg(again.pid, signal.SIGINT)
