@@ -321,6 +321,9 @@ def sample_workspace(robot: Robot, scene: Scene, n: int, seed: int | None = 0, w
             finally:
                 world.close()
         else:
+            # a scene or robot pybullet cannot load fails here, in a fraction of a second, not in every
+            # worker (where it also used to leave Pool.terminate hanging now and then)
+            CollisionWorld(robot, scene).close()
             ctx = multiprocessing.get_context("spawn")
             with ctx.Pool(workers, initializer=_init_worker, initargs=(robot, scene)) as pool:
                 for chunk, result in zip(chunks, pool.imap(_check_chunk, chunks)):

@@ -81,7 +81,7 @@ def test_malformed_inputs_fail_with_a_message_naming_the_problem(tmp_path, args,
     assert not (tmp_path / "out").exists()  # checked before any sampling or writing
 
 
-def test_a_scene_urdf_pybullet_cannot_load_fails_cleanly_from_the_worker_pool(tmp_path):
+def test_a_scene_urdf_pybullet_cannot_load_fails_cleanly_with_several_workers(tmp_path):
     (tmp_path / "junk.urdf").write_text("<robot name='junk'><link name='a'>")
     (tmp_path / "scene.json").write_text('{"name": "s", "bodies": [{"type": "urdf", "urdf": "junk.urdf"}]}')
     result = _run("tdgen", "ur10.urdf", "--scene", tmp_path / "scene.json", "--samples", 2500, "--workers", 2,
