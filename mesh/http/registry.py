@@ -60,6 +60,7 @@ class ThingEntry:
     epoch: int = 0  # bumped around each write/invoke through the adapter
     rendered: dict[str, bytes] = field(default_factory=dict)  # HTTP TD JSON by base URL
     dropped: dict[str, int] = field(default_factory=dict)  # publications refused per affordance (forged, broken)
+    refetching: bool = False  # a TD change was announced: readers wait for the Thing's own TD
 
 
 class Registry:
@@ -173,7 +174,9 @@ class Registry:
             entry.generation += 1
             if entry.fetch:
                 entry.fetch.cancel()
+            entry.refetching = True
             entry.fetch = asyncio.ensure_future(self._fetch_td(entry, entry.generation))
+            entry.fetch.add_done_callback(lambda done: self._refetched(entry, done))
             return
         why = self._invalid(entry, kind, name, payload)
         if why is not None:
@@ -188,6 +191,11 @@ class Registry:
             if self._observable(entry, name):
                 entry.values[name] = _Cached(payload, time.monotonic())
         self.observers.publish(thing, kind, Change(name, payload, time.time()))
+
+    @staticmethod
+    def _refetched(entry: ThingEntry, done: asyncio.Future) -> None:
+        if entry.fetch is done:  # not a fetch that a newer announcement replaced
+            entry.refetching = False
 
     @staticmethod
     def _invalid(entry: ThingEntry, kind: str, name: str, payload: bytes) -> str | None:
@@ -261,6 +269,9 @@ class Registry:
     async def td(self, thing: str) -> ThingDescription:
         """The Thing's mesh TD; waits for a fetch in progress. 404 unknown, 503 gone or not yet known."""
         entry = self._entry(thing)
+        if entry.refetching and entry.fetch is not None and not entry.fetch.done():
+            await asyncio.wait({entry.fetch}, timeout=self.settings.query_timeout)  # the TD that was announced
+            entry = self._entry(thing)
         if entry.td is None and entry.td_error is None:
             if entry.fetch is None or entry.fetch.done():
                 entry.fetch = asyncio.ensure_future(self._fetch_td(entry, entry.generation))
