@@ -66,6 +66,7 @@ CONNECT_NOTE = ("The lab: --connect ENDPOINT before the command (twinmesh --conn
 @click.option("--multicast/--no-multicast", default=False, show_default=True, show_envvar=True,
               help="Multicast scouting.")
 @click.option("-v", "--verbose", count=True, help="More logging (-vv for debug).")
+@click.version_option(package_name="twinmesh", message="twinmesh %(version)s")
 @click.pass_context
 def main(ctx: click.Context, prefix, connect, listen, mode, multicast, verbose) -> None:
     """twinmesh: a digital-twin lab for the Web of Things."""

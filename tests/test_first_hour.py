@@ -159,3 +159,11 @@ def test_a_bad_value_is_one_line_naming_the_field_and_the_rule(lab, args, expect
     r = lab.cli(*args, timeout=30)
     assert r.returncode != 0 and expected in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_version_is_the_installed_distributions():
+    from importlib.metadata import version
+
+    r = subprocess.run(twinmesh_cmd("tcp/127.0.0.1:1", "--version"), capture_output=True, text=True, timeout=60,
+                       cwd=REPO)
+    assert r.returncode == 0 and r.stdout.split()[-1] == version("twinmesh")
