@@ -82,6 +82,19 @@ def die_with_parent(parent: int) -> None:
         return
     if os.getppid() != parent:  # it died before we asked
         os.kill(os.getpid(), signal.SIGTERM)
+    threading.Thread(target=_orphan_watchdog, args=(parent,), name="orphan-watchdog", daemon=True).start()
+
+
+ORPHAN_GRACE = 1.5  # s an orphaned process has to stop cleanly (sessions, a recording's footer) before it is ended
+
+
+def _orphan_watchdog(parent: int) -> None:
+    """The SIGTERM above asks for a clean stop; if the process is still there ORPHAN_GRACE seconds after
+    its parent died (a session close that hangs), it ends itself: no orphan holds a port for long."""
+    while os.getppid() == parent:
+        time.sleep(0.25)
+    time.sleep(ORPHAN_GRACE)
+    os._exit(1)
 
 
 def _child(spec: ProcessSpec, settings_json: bytes, log_level: int, parent: int) -> None:
