@@ -81,8 +81,8 @@ class MeshClient:
             raise TimedOut(f"{name} did not answer {key} within {timeout:g} s")
         if what is not None:  # alive, yet nothing serves the key: most likely a wrong name
             self.check_affordance(name, *what)
-            raise Unavailable(f"{name} did not answer {key}")
-        raise NotFound(f"{name} has nothing at {key}")
+        # no such key, or a fresh peer session whose routes to the Thing are not there yet: retryable
+        raise Unavailable(f"{name} did not answer {key}")
 
     # --- affordances -------------------------------------------------------------------
     def td(self, thing: str) -> ThingDescription:
