@@ -26,7 +26,7 @@ def free_port() -> int:
 
 
 def twinmesh_cmd(endpoint: str, *args: str) -> list[str]:
-    return [sys.executable, "-m", "mesh", "--connect", endpoint, *args]
+    return [sys.executable, "-m", "twinmesh", "--connect", endpoint, *args]
 
 
 @dataclass

@@ -35,8 +35,8 @@ def http(lab):
 
 @pytest.fixture
 def zenoh_session(lab):
-    from mesh.session import open_session
-    from mesh.settings import MeshSettings
+    from twinmesh.fabric.session import open_session
+    from twinmesh.fabric.settings import MeshSettings
 
     with open_session(MeshSettings(mode="client", connect=(lab.endpoint,))) as session:
         yield session
@@ -180,7 +180,7 @@ def test_repairing_something_that_is_no_recording_is_one_line(tmp_path):
 def test_a_simulation_that_stops_stepping_says_so_and_tells_its_process():
     import threading
 
-    from devices.world import World
+    from twinmesh.sim.world import World
 
     died = threading.Event()
     world = World(speed=None)
@@ -196,7 +196,7 @@ def test_a_simulation_that_stops_stepping_says_so_and_tells_its_process():
 
 
 def test_speed_factors_outside_the_sane_range_are_refused_by_the_world_and_the_cli():
-    from devices.world import World
+    from twinmesh.sim.world import World
 
     world = World(speed=1.0)
     try:

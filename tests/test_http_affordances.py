@@ -25,9 +25,9 @@ def lab(tmp_path_factory):
 @pytest.fixture(scope="module")
 def mesh(lab):
     """A Zenoh consumer on the lab: the device's own view, bypassing the adapter and its cache."""
-    from mesh.consumer import MeshClient
-    from mesh.session import open_session
-    from mesh.settings import MeshSettings
+    from twinmesh.fabric.client import MeshClient
+    from twinmesh.fabric.session import open_session
+    from twinmesh.fabric.settings import MeshSettings
 
     settings = MeshSettings(connect=(lab.endpoint,), mode="client")
     with open_session(settings) as session:

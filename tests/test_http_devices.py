@@ -28,7 +28,7 @@ CSV = b"x,y,z,collision\n0,0,0,0\n"
 
 
 def probe_td(name: str):
-    from mesh.td import decode_td, thing_id
+    from twinmesh.wot.td import decode_td, thing_id
 
     return decode_td({
         "title": name, "id": thing_id(name),
@@ -56,8 +56,8 @@ def probe_td(name: str):
 
 
 def _probe(session, name: str, keys):
-    from mesh.problem import Refused
-    from mesh.thing import ExposedThing
+    from twinmesh.wot.problem import Refused
+    from twinmesh.fabric.server import ExposedThing
 
     def refuse(_):
         raise Refused("the probe refuses everything", reason="always")
@@ -74,10 +74,10 @@ def _probe(session, name: str, keys):
 
 def serve(endpoint: str, kind: str, name: str) -> None:
     """Process entry: one `light` or `probe` Thing; prints `exposed` once its liveliness token is out."""
-    from devices.lights import Light
-    from mesh.processes import install_stop_handlers
-    from mesh.session import open_session
-    from mesh.settings import MeshSettings
+    from twinmesh.things.lights import Light
+    from twinmesh.lab.supervisor import install_stop_handlers
+    from twinmesh.fabric.session import open_session
+    from twinmesh.fabric.settings import MeshSettings
 
     stop = install_stop_handlers()
     settings = MeshSettings(connect=(endpoint,))

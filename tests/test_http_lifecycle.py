@@ -116,8 +116,8 @@ def _ok(url: str) -> bool:
 
 def test_observers_are_dropped_when_clients_disconnect(lab, monkeypatch):
     """The adapter in this process (to look at its registry): feeds go when their clients go."""
-    from mesh.http import server
-    from mesh.settings import MeshSettings
+    from twinmesh.http import server
+    from twinmesh.fabric.settings import MeshSettings
 
     registries = []
 

@@ -16,7 +16,7 @@ import httpx
 import numpy as np
 import pytest
 
-from devices.robot import workspace_from_csv
+from twinmesh.sim.robot import workspace_from_csv
 from labs import start_lab
 from tdschema import assert_valid_td
 

@@ -15,13 +15,13 @@ import msgspec
 import numpy as np
 import pytest
 
-from devices.pan_tilt import NOTHING, PanTilt
-from devices.pan_tilt_thing import expose_pan_tilt, pan_tilt_td
-from devices.sensors import reading_of
-from devices.world import World, static_box
+from twinmesh.sim.pan_tilt import NOTHING, PanTilt
+from twinmesh.things.pan_tilt import expose_pan_tilt, pan_tilt_td
+from twinmesh.sim.sensors import reading_of
+from twinmesh.sim.world import World, static_box
 from labs import free_port
-from mesh.problem import BadInput, Problem
-from mesh.td import thing_id, zenoh_forms
+from twinmesh.wot.problem import BadInput, Problem
+from twinmesh.wot.td import thing_id, zenoh_forms
 from tdschema import assert_valid_td
 
 BASE = (0.0, 0.0, 0.75)        # the unit stands on a table, looking along +x at home
@@ -216,7 +216,7 @@ def test_the_same_colour_on_another_body_is_a_change(unit, world, names):
 def test_the_td_is_valid_and_keeps_the_reference_affordances_and_inputs():
     from pathlib import Path
 
-    reference = json.loads((Path(__file__).resolve().parents[1] / "devices" / "tds" / "pan-tilt.json").read_text())
+    reference = json.loads((Path(__file__).resolve().parents[1] / "twinmesh" / "things" / "tds" / "pan-tilt.json").read_text())
     td = pan_tilt_td("pan-tilt-1")
     served = msgspec.to_builtins(zenoh_forms(td, "wot", "pan-tilt-1"))
     assert_valid_td(served)
@@ -240,8 +240,8 @@ def test_the_td_is_valid_and_keeps_the_reference_affordances_and_inputs():
 # --- on a mesh ---------------------------------------------------------------------------------------
 @pytest.fixture
 def mesh():
-    from mesh.session import open_session
-    from mesh.settings import MeshSettings
+    from twinmesh.fabric.session import open_session
+    from twinmesh.fabric.settings import MeshSettings
 
     settings = MeshSettings(connect=(f"tcp/127.0.0.1:{free_port()}",))
     with open_session(settings.as_router()):
@@ -249,8 +249,8 @@ def mesh():
 
 
 def test_on_the_mesh_move_to_answers_when_there_with_the_final_position_published(mesh, unit, world, names):
-    from mesh.consumer import MeshClient
-    from mesh.session import open_session
+    from twinmesh.fabric.client import MeshClient
+    from twinmesh.fabric.session import open_session
 
     add_box(world, names, "red-box", RED_AT, RED)
     positions: queue.Queue = queue.Queue()

@@ -129,9 +129,8 @@ def _drain(q: queue.Queue, quiet: float, limit: float = 10.0) -> list:
 
 
 def test_world_publishes_poses_of_both_robots_and_the_cubes_throttled_and_ends_on_the_final_state(http, client):
-    from devices.compensation import (DOBOT_MAIN_JOINTS, DOBOT_PASSIVE_JOINTS, UARM_MAIN_JOINTS,
-                                      UARM_PASSIVE_JOINTS)
-    from mesh.scene_model import Poses
+    from twinmesh.sim.compensation import DOBOT_MAIN_JOINTS, DOBOT_PASSIVE_JOINTS, UARM_MAIN_JOINTS, UARM_PASSIVE_JOINTS
+    from twinmesh.messages.scene import Poses
 
     q: queue.Queue = queue.Queue()
     sub = client.observe("world", "poses", q.put)
@@ -177,7 +176,7 @@ def test_poses_are_quiet_when_nothing_moves(http, client):
 
 
 def test_scene_json_describes_robots_static_and_moving_bodies_and_the_urdfs_download(http):
-    from mesh.scene_model import SceneDescription
+    from twinmesh.messages.scene import SceneDescription
 
     r = http.get("/world/files/scene.json")
     assert r.status_code == 200 and r.headers["content-type"].startswith("application/json")

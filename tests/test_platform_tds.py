@@ -42,10 +42,10 @@ ALLOWED = {
     "uarm/actions/beepWithTime": "no sound in simulation",
     # the real `location` declares the goTo box, but the arm stands at homeLoc points outside it
     # (x 50..250, y -330..330) and passes outside it between two points; node-wot validates what
-    # it reads, so the twin declares the arm's whole reach (devices.platform_things.LOCATION_RANGE)
+    # it reads, so the twin declares the arm's whole reach (twinmesh.things.platform.LOCATION_RANGE)
     "uarm/properties/location/properties/[xyz]/minimum": "location: the arm's whole reach",
     "uarm/properties/location/properties/[xyz]/maximum": "location: the arm's whole reach",
-    # a TD offers only what a handler serves (mesh.thing.ExposedThing._truthful): the twin's location is
+    # a TD offers only what a handler serves (twinmesh.fabric.server.ExposedThing._truthful): the twin's location is
     # where its joints put it, so it is read-only (the real TD says writable, yet no write could move it)
     "uarm/properties/location/readOnly": "location: read-only, as the twin serves it",
 }
@@ -95,7 +95,7 @@ def assert_like_the_real_td(slug: str, twin: dict) -> set[str]:
 
 # --- without a lab: the TDs the devices are built with --------------------------------------------
 def test_twin_tds_have_the_real_affordances_and_schemas_with_only_the_documented_deviations():
-    from devices.platform_things import PLATFORM_DEVICES, twin_td
+    from twinmesh.things.platform import PLATFORM_DEVICES, twin_td
 
     assert set(PLATFORM_DEVICES) == set(REAL)
     used: set[str] = set()
@@ -105,7 +105,7 @@ def test_twin_tds_have_the_real_affordances_and_schemas_with_only_the_documented
 
 
 def test_twin_tds_say_their_deviations_in_their_descriptions():
-    from devices.platform_things import twin_td
+    from twinmesh.things.platform import twin_td
 
     assert "writes are refused" in twin_td("infrared-sensor-1").description
     assert "every change" in twin_td("infrared-sensor-2").description
@@ -116,8 +116,8 @@ def test_twin_tds_say_their_deviations_in_their_descriptions():
 
 def test_the_declared_location_range_holds_every_position_the_uarm_can_take():
     """node-wot validates read values: `location` must never leave its declared ranges (all motor angles)."""
-    from devices.platform_things import LOCATION_RANGE
-    from devices.uarm import BETWEEN_ARMS_DEG, LIMITS_DEG, real_fk
+    from twinmesh.things.platform import LOCATION_RANGE
+    from twinmesh.sim.uarm import BETWEEN_ARMS_DEG, LIMITS_DEG, real_fk
 
     grids = [np.radians(np.linspace(*LIMITS_DEG[j], n)) for j, n in
              (("base", 61), ("lower_arm", 160), ("upper_arm", 160))]
@@ -142,9 +142,9 @@ def lab(tmp_path_factory):
 
 @contextmanager
 def mesh_client(endpoint: str) -> Iterator["MeshClient"]:  # noqa: F821
-    from mesh.consumer import MeshClient
-    from mesh.session import open_session
-    from mesh.settings import MeshSettings
+    from twinmesh.fabric.client import MeshClient
+    from twinmesh.fabric.session import open_session
+    from twinmesh.fabric.settings import MeshSettings
 
     settings = MeshSettings(mode="client", connect=(endpoint,))
     with open_session(settings) as session:
@@ -191,7 +191,7 @@ def test_the_world_td_links_the_scene_and_each_robots_urdf(lab):
 
 
 def test_the_comparison_sees_a_changed_bound_a_lost_flag_and_a_missing_affordance():
-    from devices.platform_things import twin_td
+    from twinmesh.things.platform import twin_td
 
     td = twin_td("conveyor-belt-1").to_dict()
     td["properties"]["speed"]["maximum"] = 200

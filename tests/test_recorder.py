@@ -9,8 +9,8 @@ import pytest
 
 from labs import start_lab, stop_process
 
-from mesh import rerun_mapping as mapping
-from mesh.td import DataSchema
+from twinmesh.recorder import mapping
+from twinmesh.wot.td import DataSchema
 
 RERUN = str(Path(sys.executable).with_name("rerun"))
 LEFT = "/things/light-left"

@@ -19,17 +19,17 @@ import pytest
 from labs import REPO, start_lab, stop_process
 from test_recorder import RERUN, read_column, scalars, texts, wait_for_line
 
-from mesh.rerun_robots import RobotDrawer, RobotFiles, Workspace, joint_units, link_file, to_twin_frame
-from mesh.rerun_scene import SceneDrawer, SceneFiles, lab_blueprint
-from mesh.scene_model import Pose, RobotModel, SceneDescription, TwinDescription
-from mesh.settings import MeshSettings
-from mesh.td import DataSchema, Link, PropertyAffordance, ThingDescription
+from twinmesh.recorder.robots import RobotDrawer, RobotFiles, Workspace, joint_units, link_file, to_twin_frame
+from twinmesh.recorder.scene import SceneDrawer, SceneFiles, lab_blueprint
+from twinmesh.messages.scene import Pose, RobotModel, SceneDescription, TwinDescription
+from twinmesh.fabric.settings import MeshSettings
+from twinmesh.wot.td import DataSchema, Link, PropertyAffordance, ThingDescription
 
-UR10_URDF = (REPO / "tdgen" / "robots" / "ur10.urdf").read_text()
+UR10_URDF = (REPO / "twinmesh" / "robot" / "models" / "ur10.urdf").read_text()
 JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
           "wrist_3_joint"]
 BASE = Pose((0.8, -0.4, 0.1), (0.0, 0.0, math.sin(math.pi / 4), math.cos(math.pi / 4)))  # yawed 90°
-TWIN = TwinDescription(robot="ur10", urdf="tdgen/robots/ur10.urdf", urdf_sha256="0" * 64, urdf_file="ur10.urdf",
+TWIN = TwinDescription(robot="ur10", urdf="twinmesh/robot/models/ur10.urdf", urdf_sha256="0" * 64, urdf_file="ur10.urdf",
                        base=BASE)
 SWEEP_DEG = [round(1.5 * i, 3) for i in range(40)]  # shoulder_pan, deg
 ELBOW_DEG = -30.0
@@ -96,8 +96,8 @@ def joint_sample(i: int) -> dict[str, float]:
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
     """Serve `ur10` here, record its sweep, regenerate its workspace (TD re-published), stop with Ctrl-C."""
-    from mesh.session import open_session
-    from mesh.thing import ExposedThing
+    from twinmesh.fabric.session import open_session
+    from twinmesh.fabric.server import ExposedThing
 
     tmp = tmp_path_factory.mktemp("rec-robots")
     lab = start_lab(tmp, "lights", http=False, things={"light-left"})
@@ -326,8 +326,8 @@ def test_the_blueprint_hides_workspaces_in_the_lab_view_and_shows_them_in_their_
 
 # --- a real robot Thing --------------------------------------------------------------------------
 def _robot_missing() -> str | None:
-    if importlib.util.find_spec("devices.robot_thing") is None:
-        return "`twinmesh robot` not written yet: no devices/robot_thing.py"
+    if importlib.util.find_spec("twinmesh.things.robot") is None:
+        return "`twinmesh robot` not written yet: no twinmesh/things/robot.py"
     return None
 
 
@@ -339,7 +339,7 @@ def test_a_ur10_thing_is_recorded_with_its_trajectory_and_workspace(tmp_path):
     try:
         recorder = lab.spawn("record", str(path), log=log)
         wait_for_line(log, "recording to", recorder)
-        lab.spawn("robot", str(REPO / "tdgen" / "robots" / "ur10.urdf"), "--name", "ur10", "--samples", "3000",
+        lab.spawn("robot", str(REPO / "twinmesh" / "robot" / "models" / "ur10.urdf"), "--name", "ur10", "--samples", "3000",
                   "--speed", "max", log=tmp_path / "robot.log")
         lab.wait_things({"ur10"}, timeout=120)
         td = _wait_workspace(lab, "ur10", timeout=300)
@@ -378,11 +378,11 @@ def _wait_workspace(lab, thing: str, timeout: float) -> dict:
 
 def _safe_target(lab, td: dict) -> dict[str, float]:
     """A collision-free sampled point whose ten nearest samples are free too, near the free points' middle."""
-    from mesh.consumer import MeshClient
-    from mesh.problem import Unavailable
-    from mesh.rerun_robots import read_points
-    from mesh.session import open_session
-    from mesh.td import decode_td
+    from twinmesh.fabric.client import MeshClient
+    from twinmesh.wot.problem import Unavailable
+    from twinmesh.recorder.robots import read_points
+    from twinmesh.fabric.session import open_session
+    from twinmesh.wot.td import decode_td
 
     settings = MeshSettings(connect=(lab.endpoint,))
     with open_session(settings) as session:

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from devices.robot import workspace_from_csv
+from twinmesh.sim.robot import workspace_from_csv
 from interop import npm
 from labs import start_lab, stop_process
 from tdschema import assert_valid_td
@@ -61,9 +61,9 @@ def wait_generated(lab, name: str, timeout: float = 120.0) -> dict:
 
 @contextmanager
 def mesh_client(endpoint: str):
-    from mesh.consumer import MeshClient
-    from mesh.session import open_session
-    from mesh.settings import MeshSettings
+    from twinmesh.fabric.client import MeshClient
+    from twinmesh.fabric.session import open_session
+    from twinmesh.fabric.settings import MeshSettings
 
     settings = MeshSettings(mode="client", connect=(endpoint,))
     with open_session(settings) as session:

@@ -10,19 +10,19 @@ import msgspec
 import numpy as np
 import pytest
 
-from devices.robot import Base, RobotTwin, TdFrame, workspace_from_csv
-from devices.robot_thing import RobotThing, provisional_td
-from devices.world import World
+from twinmesh.sim.robot import Base, RobotTwin, TdFrame, workspace_from_csv
+from twinmesh.things.robot import RobotThing, provisional_td
+from twinmesh.sim.world import World
 from labs import free_port
-from mesh.consumer import MeshClient
-from mesh.problem import Problem
-from mesh.session import open_session
-from mesh.settings import MeshSettings
-from mesh.td import decode_td
-from tdgen.calibration import fit_calibration
-from tdgen.generate import generate
-from tdgen.scene import BoxBody, build_into
-from tdgen.service import TdgenService, twin_hash
+from twinmesh.fabric.client import MeshClient
+from twinmesh.wot.problem import Problem
+from twinmesh.fabric.session import open_session
+from twinmesh.fabric.settings import MeshSettings
+from twinmesh.wot.td import decode_td
+from twinmesh.robot.calibration import fit_calibration
+from twinmesh.tdgen.generate import generate
+from twinmesh.robot.surroundings import BoxBody, build_into
+from twinmesh.things.tdgen import TdgenService, twin_hash
 from tdschema import assert_valid_td
 
 SAMPLES = 4000
@@ -252,8 +252,8 @@ def test_a_failed_generation_is_reported_and_explains_the_refusals(mesh, twin, t
 
 
 def test_the_ur10_scene_runs_the_generic_robot_at_the_lab_speed():
-    from devices.scenes import scene_specs
-    from mesh.processes import resolve
+    from twinmesh.lab.scenes import scene_specs
+    from twinmesh.lab.supervisor import resolve
 
     (spec,) = scene_specs("ur10", speed=None, samples=5000)
     assert spec.kwargs == {"urdf": "ur10.urdf", "name": "ur10", "scene": "table-and-wall", "speed": None,

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from tdgen.calibration import CalibrationError, fit_calibration, load_calibration, read_pairs
-from tdgen.generate import generate
-from tdgen.sampling import read_points_csv
+from twinmesh.robot.calibration import CalibrationError, fit_calibration, load_calibration, read_pairs
+from twinmesh.tdgen.generate import generate
+from twinmesh.robot.workspace import read_points_csv
 
 K, B = np.array([1.02, -0.98, 0.5]), np.array([12.0, -40.0, 100.0])
 

@@ -6,7 +6,7 @@ import json
 import pytest
 from click.testing import CliRunner
 
-from tdgen.__main__ import main
+from twinmesh.cli.main import main
 
 NO_JOINT_URDF = """<robot name="statue">
   <link name="base"><collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision></link>

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from tdgen import ik
-from tdgen.commands_ik import ik_command
-from tdgen.kinematics import ForwardKinematics
-from tdgen.robot import Robot
+from twinmesh.robot import ik
+from twinmesh.cli.ik import ik_command
+from twinmesh.robot.kinematics import ForwardKinematics
+from twinmesh.robot.model import Robot
 
 from test_tdgen_kinematics import ROBOTS, level, linkage_urdf, random_q
 

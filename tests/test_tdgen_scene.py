@@ -10,10 +10,21 @@ import pybullet as pb
 import pybullet_data
 import pytest
 
-from tdgen.robot import Robot
-from tdgen.sampling import CollisionWorld
-from tdgen.scene import (BoxBody, CylinderBody, RobotPlacement, Scene, SceneError, UrdfBody, build_into,
-                         cluttered_lab, empty_scene, encode_scene, load_scene)
+from twinmesh.robot.model import Robot
+from twinmesh.robot.collision import CollisionWorld
+from twinmesh.robot.surroundings import (
+    BoxBody,
+    CylinderBody,
+    RobotPlacement,
+    Scene,
+    SceneError,
+    UrdfBody,
+    build_into,
+    cluttered_lab,
+    empty_scene,
+    encode_scene,
+    load_scene,
+)
 
 
 def test_shipped_scenes_load_by_name():

@@ -41,7 +41,7 @@ def fresh(client):
 
 
 def slot_position(i: int) -> np.ndarray:
-    from devices.platform import LAYOUT, UARM_BASE
+    from twinmesh.sim.layouts.platform import LAYOUT, UARM_BASE
 
     real = [LAYOUT.warehouse_x, LAYOUT.warehouse_slots_y[i], LAYOUT.warehouse_floor + LAYOUT.cube / 2]
     return np.asarray(UARM_BASE) + np.asarray(real) / 1000.0
@@ -116,7 +116,7 @@ def test_a_failing_step_makes_the_workflow_exit_non_zero_naming_it(lab, fresh, v
 
 
 def test_the_workflow_function_reports_eight_timed_steps_and_the_colour(fresh):
-    from devices.workflow import MeshConsumer, cube_workflow
+    from twinmesh.apps.cube_workflow import MeshConsumer, cube_workflow
 
     heard = []
     run = cube_workflow(MeshConsumer(fresh), heard.append, sensor_timeout=60)
@@ -128,7 +128,7 @@ def test_the_workflow_function_reports_eight_timed_steps_and_the_colour(fresh):
 
 
 def test_colour_names():
-    from devices.workflow import color_name
+    from twinmesh.apps.cube_workflow import color_name
 
     assert [color_name(c) for c in ([219, 31, 26], [31, 168, 56], [31, 71, 219], [242, 209, 26], [0, 0, 0],
                                     [128, 128, 128], [250, 250, 250])] == \

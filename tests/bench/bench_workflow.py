@@ -3,7 +3,7 @@
 Starts `twinmesh up iot-platform --speed max` (then `--speed 1`) on free ports and, for each:
 - idle: CPU (% of one core, user+system, summed over the supervisor and all its processes) and
   resident memory (RSS per process and summed; shared pages count once per process) over a few s;
-- the workflow over Zenoh (`devices.workflow.cube_workflow` with a `MeshConsumer`; at speed max also
+- the workflow over Zenoh (`twinmesh.apps.cube_workflow.cube_workflow` with a `MeshConsumer`; at speed max also
   over the HTTP adapter with an `HttpConsumer`): wall time, simulated time (the world Thing's
   `simTime` before and after), and the lab's CPU and peak RSS meanwhile.
 
@@ -89,7 +89,7 @@ def lab_at(speed: str, tmp: Path):
 
 
 def one_run(lab, client, consumer, label: str) -> None:
-    from devices.workflow import cube_workflow
+    from twinmesh.apps.cube_workflow import cube_workflow
 
     client.invoke("world", "reset")
     sim0 = client.read("world", "simTime")
@@ -102,7 +102,7 @@ def one_run(lab, client, consumer, label: str) -> None:
 
 
 def bench(speed: str, runs: int, idle: float, http: bool, tmp: Path) -> None:
-    from devices.workflow import HttpConsumer, MeshConsumer
+    from twinmesh.apps.cube_workflow import HttpConsumer, MeshConsumer
 
     print(f"twinmesh up iot-platform --speed {speed}")
     with lab_at(speed, tmp) as lab, mesh_client(lab.endpoint) as client:

@@ -1,1 +1,0 @@
-"""twinmesh twins: the pybullet world, device behaviours, robot models and scenes."""

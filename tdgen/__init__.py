@@ -1,1 +1,0 @@
-"""twinmesh robot TD generation: introspection, kinematics, workspace sampling, hull, checks, calibration."""

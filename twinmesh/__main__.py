@@ -1,0 +1,3 @@
+from twinmesh.cli.main import main
+
+main()

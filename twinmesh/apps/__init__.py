@@ -1,0 +1,1 @@
+"""Applications that consume the lab's Things: the cube workflow, the IK evaluation."""

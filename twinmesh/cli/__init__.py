@@ -1,0 +1,1 @@
+"""The `twinmesh` command line (click lives only here)."""

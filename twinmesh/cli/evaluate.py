@@ -1,0 +1,65 @@
+"""`twinmesh eval`: measure a running lab's robots through their affordances."""
+from __future__ import annotations
+
+import io
+import sys
+from contextlib import contextmanager
+from typing import Iterator
+
+import click
+
+from twinmesh.apps.evaluation import Consumer, HttpThings, evaluate_ik, read_targets, summary, write_table
+from twinmesh.fabric.client import MeshClient
+from twinmesh.wot.problem import Problem
+
+
+@contextmanager
+def consumer(settings, via: str | None) -> Iterator[Consumer]:
+    if via:
+        things = HttpThings(via)
+        try:
+            yield things
+        finally:
+            things.close()
+        return
+    from twinmesh.wot.problem import Problem
+    from twinmesh.fabric.session import one_shot_session
+
+    mode_given = click.get_current_context().find_root().params.get("mode") is not None
+    try:
+        with one_shot_session(settings, mode_given) as session:
+            yield MeshClient(session, settings)
+    except Problem as p:
+        raise click.ClickException(str(p)) from None
+
+
+# --- the command ----------------------------------------------------------------------------------
+@click.group("eval")
+def eval_command() -> None:
+    """Measure a running lab's robots through their affordances."""
+
+
+@eval_command.command("ik")
+@click.option("--thing", required=True, help="The robot Thing.")
+@click.option("--targets", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="CSV of targets x,y,z (mm, the robot TD's frame); a header line is allowed.")
+@click.option("--via", metavar="URL", help="Use the WoT HTTP Things at URL (e.g. the adapter, http://127.0.0.1:8080) "
+              "instead of Zenoh.")
+@click.option("--out", type=click.Path(dir_okay=False), help="Write the table to this CSV [default: stdout].")
+@click.pass_obj
+def ik_command(settings, thing: str, targets: str, via: str | None, out: str | None) -> None:
+    """Move a robot to each target with moveToCartesianPosition and measure where it got to."""
+    points = read_targets(targets)
+    with consumer(settings, via) as c:
+        try:
+            rows = evaluate_ik(c, thing, points)
+        except Problem as p:
+            raise click.ClickException(str(p)) from None
+    if out:
+        with open(out, "w", newline="") as f:
+            write_table(rows, f)
+    else:
+        buf = io.StringIO()
+        write_table(rows, buf)
+        sys.stdout.write(buf.getvalue())
+    click.echo(summary(rows), err=bool(not out))

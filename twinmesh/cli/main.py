@@ -1,0 +1,403 @@
+"""The `twinmesh` command: the one composition root (it alone may import devices and tdgen)."""
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from contextlib import contextmanager
+from typing import Any
+
+import click
+import msgspec
+
+from twinmesh.fabric.client import NOTHING, MeshClient
+from twinmesh.wot.problem import Problem
+from twinmesh.lab.supervisor import ProcessSpec, Supervisor, set_title
+from twinmesh.fabric.settings import DEFAULT_ENDPOINT, MeshSettings
+
+ADAPTER = "twinmesh.http.server:run"
+RECORDER = "twinmesh.recorder.logger:run"
+TDGEN_SERVICE = "twinmesh.things.tdgen:run"
+
+
+class LazyGroup(click.Group):
+    """Loads heavy subcommands (pybullet, trimesh) only when they are used: `twinmesh read` stays fast."""
+
+    lazy = {
+        "tdgen": "twinmesh.cli.tdgen:tdgen_command",
+        "check": "twinmesh.cli.tdgen:check_command",
+        "ik": "twinmesh.cli.ik:ik_command",
+        "workflow": "twinmesh.cli.workflow:workflow_command",
+        "robot": "twinmesh.cli.robot:robot_command",
+        "eval": "twinmesh.cli.evaluate:eval_command",
+    }
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted([*super().list_commands(ctx), *self.lazy])
+
+    def get_command(self, ctx: click.Context, name: str):
+        if name in self.lazy:
+            from twinmesh.lab.supervisor import resolve
+
+            cmd = resolve(self.lazy[name])
+        else:
+            cmd = super().get_command(ctx, name)
+        if cmd is not None and name in LAB_COMMANDS and CONNECT_NOTE not in (cmd.epilog or ""):
+            cmd.epilog = f"{cmd.epilog}\n\n{CONNECT_NOTE}" if cmd.epilog else CONNECT_NOTE
+        return cmd
+
+
+# commands that talk to a running lab: their help says where they find it
+LAB_COMMANDS = {"things", "td", "read", "write", "invoke", "observe", "subscribe", "wait", "workflow", "eval",
+                "robot", "record", "adapter", "plan"}
+CONNECT_NOTE = ("The lab: --connect ENDPOINT before the command (twinmesh --connect tcp/HOST:PORT COMMAND ...), "
+                f"or the environment variable TWINMESH_CONNECT; default {DEFAULT_ENDPOINT}.")
+
+
+@click.group(cls=LazyGroup, context_settings={"auto_envvar_prefix": "TWINMESH", "help_option_names": ["-h", "--help"]})
+@click.option("--prefix", default="wot", show_default=True, show_envvar=True, help="Key-expression prefix of the lab.")
+@click.option("--connect", multiple=True, metavar="ENDPOINT", show_envvar=True,
+              help=f"Zenoh endpoint of the lab to connect to (repeatable; in the variable, space-separated) "
+                   f"[default: {DEFAULT_ENDPOINT}].")
+@click.option("--listen", multiple=True, metavar="ENDPOINT", show_envvar=True,
+              help="Zenoh endpoint to listen on (repeatable).")
+@click.option("--mode", type=click.Choice(["peer", "client", "router"]), show_envvar=True,
+              help="Zenoh mode [default: peer for devices and services, client for one-shot commands].")
+@click.option("--multicast/--no-multicast", default=False, show_default=True, show_envvar=True,
+              help="Multicast scouting.")
+@click.option("-v", "--verbose", count=True, help="More logging (-vv for debug).")
+@click.version_option(package_name="twinmesh", message="twinmesh %(version)s")
+@click.pass_context
+def main(ctx: click.Context, prefix, connect, listen, mode, multicast, verbose) -> None:
+    """twinmesh: a digital-twin lab for the Web of Things."""
+    logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)],
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    ctx.obj = MeshSettings(prefix=prefix, mode=mode or "peer", connect=tuple(connect) or (DEFAULT_ENDPOINT,),
+                           listen=tuple(listen), multicast=multicast)
+
+
+def _auth(value: str | None) -> str | None:
+    """Check `--auth` early (a typo must not start an open adapter); the string goes to the adapter."""
+    from twinmesh.http.auth import parse_auth
+
+    try:
+        parse_auth(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--auth") from None
+    return value or None
+
+
+AUTH_HELP = "HTTP security: bearer:TOKEN or basic:USER:PASS [env TWINMESH_HTTP_AUTH]."
+
+
+def _host_port(value: str) -> tuple[str, int]:
+    host, _, port = value.rpartition(":")
+    if not host or not port.isdigit():
+        raise click.BadParameter(f"{value!r} is not HOST:PORT")
+    return host, int(port)
+
+
+# --- running a lab ----------------------------------------------------------------------------
+READY_TIMEOUT = 600.0  # s `up` waits for every Thing of its scene before it gives up
+
+
+@main.command()
+@click.argument("scene", required=False)
+@click.option("--zenoh", "zenoh_endpoint", metavar="ENDPOINT",
+              help="Zenoh endpoint of the lab's router: it listens there and every process of the lab connects "
+                   f"there [default: the global --connect, env TWINMESH_CONNECT, else {DEFAULT_ENDPOINT}].")
+@click.option("--http", "http", default="127.0.0.1:8080", show_default=True, help="Adapter address HOST:PORT.")
+@click.option("--no-http", is_flag=True, help="Do not start the HTTP adapter.")
+@click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS", help=AUTH_HELP)
+@click.option("--record", type=click.Path(dir_okay=False), help="Also record the lab to this .rrd file.")
+@click.option("--speed", default="1", show_default=True, help="Simulation speed factor, or 'max'.")
+@click.option("--samples", type=click.IntRange(min=100), metavar="N",
+              help="Random configurations each robot's workspace is sampled with [default: 80000; fewer start "
+                   "faster, e.g. for a class on small machines].")
+@click.option("--tdgen-cache", type=click.Path(file_okay=False),
+              help="Where the tdgen service caches generated robot TDs [default: $TWINMESH_CACHE/tdgen, "
+                   "else ~/.cache/twinmesh/tdgen].")
+@click.pass_obj
+def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, http: str, no_http: bool,
+       auth: str | None, record: str | None, speed: str, samples: int | None, tdgen_cache: str | None) -> None:
+    """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
+
+    Prints one line with the word `ready` once every Thing answers (scripts: `twinmesh wait`).
+    Ctrl-C stops it all."""
+    from twinmesh.lab.scenes import DEFAULT_SCENE, scene_specs, scene_things
+    from twinmesh.lab.readiness import LabDied, LabStatus, PortTaken, free_or_problem, serve_status, wait_ready
+    from twinmesh.things.tdgen import THING as TDGEN_THING, default_cache_dir
+
+    scene = scene or DEFAULT_SCENE
+    try:
+        specs = scene_specs(scene, speed=_speed(speed), samples=samples)
+        things = [TDGEN_THING, *scene_things(scene)]
+    except KeyError as e:
+        raise click.ClickException(str(e.args[0])) from None
+    if zenoh_endpoint:
+        settings = msgspec.structs.replace(settings, connect=(zenoh_endpoint,))
+    address = None if no_http else _host_port(http)
+    auth = _auth(auth)
+    listen = list(settings.listen) + [e for e in settings.connect if e not in settings.listen]
+    try:
+        free_or_problem(listen, address)
+    except PortTaken as e:
+        raise click.ClickException(e.detail) from None
+    router = ProcessSpec("router", "twinmesh.fabric.session:run_router_process", {"listen": listen})
+    recorder = [ProcessSpec("recorder", RECORDER, {"path": record})] if record else []
+    tdgen = ProcessSpec("tdgen", TDGEN_SERVICE, {"cache_dir": str(tdgen_cache or default_cache_dir())})
+    http_adapter = [] if address is None else [ProcessSpec("adapter", ADAPTER, {"address": address, "auth": auth})]
+    # the router alone listens; every other process connects to it
+    peers = msgspec.structs.replace(settings, listen=())
+    sup = Supervisor(peers, [router, tdgen] + recorder + specs + http_adapter)
+    set_title(f"up {scene}")
+    sup.start()
+    url = None if address is None else f"http://{address[0]}:{address[1]}/"
+    try:
+        wait_ready(peers, lambda: _lab_client(peers), things, READY_TIMEOUT,
+                   alive=lambda: "stopped" if sup.stop.is_set() else sup.dead(),
+                   progress=lambda text: click.echo(f"twinmesh up: {text}", err=True), http=url)
+    except LabDied as e:
+        sup.shutdown()
+        if e.detail == "stopped":
+            sys.exit(0)
+        raise click.ClickException(f"{e.detail} while the lab was starting (its log is above); stopped the lab")
+    except Problem as e:
+        sup.shutdown()
+        raise click.ClickException(f"{e.detail}; stopped the lab") from None
+    status = LabStatus(ready=True, scene=scene, things=things, http=url, zenoh=", ".join(settings.connect))
+    from twinmesh.fabric.session import one_shot_session
+
+    with one_shot_session(peers) as session:
+        queryable = serve_status(session, peers, status)
+        click.echo(f"twinmesh lab '{scene}' ready: {len(things)} Things on Zenoh {status.zenoh}"
+                   + ("" if url is None else f", HTTP {url}") + (f", recorder writing {record}" if record else "")
+                   + "  (Ctrl-C to stop)")
+        code = sup.run_until_stopped()
+        queryable.undeclare()
+    sys.exit(code)
+
+
+@contextmanager
+def _lab_client(settings: MeshSettings):
+    from twinmesh.fabric.session import one_shot_session
+
+    with one_shot_session(settings) as session:
+        yield MeshClient(session, settings)
+
+
+@main.command()
+@click.option("--timeout", type=click.FloatRange(min=0), default=120.0, show_default=True, metavar="S",
+              help="Give up after this many seconds.")
+@click.option("--thing", "things", multiple=True, metavar="NAME",
+              help="Wait for these Things to answer their TD instead (repeatable; for a mesh not started by "
+                   "`twinmesh up`).")
+@click.pass_obj
+def wait(settings: MeshSettings, timeout: float, things: tuple[str, ...]) -> None:
+    """Exit 0 as soon as the lab at --connect (env TWINMESH_CONNECT) is ready; 1 with the reason on timeout.
+
+    For scripts: `twinmesh up & twinmesh wait && twinmesh workflow cube`."""
+    from twinmesh.lab.readiness import wait_ready
+
+    try:
+        status = wait_ready(settings, lambda: _lab_client(settings), list(things) or None, timeout)
+    except Problem as e:
+        raise click.ClickException(f"no ready lab at {', '.join(settings.connect)}: {e.detail}") from None
+    if status is None:
+        click.echo(f"ready: {', '.join(things)}")
+    else:
+        click.echo(f"ready: lab '{status.scene}', {len(status.things)} Things on Zenoh {status.zenoh}"
+                   + ("" if status.http is None else f", HTTP {status.http}"))
+
+
+def _speed(value: str) -> float | None:
+    from twinmesh.fabric.settings import parse_speed
+
+    try:
+        return parse_speed(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
+
+
+def _run_foreground(settings: MeshSettings, target: str, **kwargs: Any) -> None:
+    from twinmesh.lab.supervisor import install_stop_handlers, resolve
+
+    resolve(target)(settings, install_stop_handlers(), **kwargs)
+
+
+@main.command()
+@click.pass_obj
+def router(settings: MeshSettings) -> None:
+    """Run the lab's Zenoh router (where peers connect; listens on --listen or the --connect endpoints)."""
+    listen = list(settings.listen) or list(settings.connect)
+    _run_foreground(settings, "twinmesh.fabric.session:run_router_process", listen=listen)
+
+
+@main.command()
+@click.option("--http", "http", default="127.0.0.1:8080", show_default=True, help="Listen on HOST:PORT.")
+@click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS", help=AUTH_HELP)
+@click.pass_obj
+def adapter(settings: MeshSettings, http: str, auth: str | None) -> None:
+    """Run the WoT HTTP adapter for every Thing on the mesh."""
+    _run_foreground(settings, ADAPTER, address=_host_port(http), auth=_auth(auth))
+
+
+@main.command()
+@click.argument("path", required=False, type=click.Path(dir_okay=False))
+@click.option("--repair", is_flag=True, help="Make the recording at PATH valid again (one cut short by a crash "
+              "or kill -9 has no footer); the original is kept as PATH.broken.")
+@click.pass_obj
+def record(settings: MeshSettings, path: str | None, repair: bool) -> None:
+    """Record the mesh to a Rerun .rrd file until Ctrl-C [default: recordings/twinmesh-DATE-TIME.rrd]."""
+    if repair:
+        from twinmesh.recorder.repair import RepairError, repair_recording
+
+        if path is None:
+            raise click.UsageError("--repair needs the PATH of the recording")
+        try:
+            click.echo(repair_recording(path))
+        except RepairError as e:
+            raise click.ClickException(str(e)) from None
+        return
+    _run_foreground(settings, RECORDER, path=path)
+
+
+# --- consuming, as a plain Zenoh peer --------------------------------------------------------
+@contextmanager
+def _client(settings: MeshSettings):
+    """A one-shot consumer; Problems (no lab, Thing gone, refused) become CLI messages."""
+    from twinmesh.fabric.session import one_shot_session
+
+    try:
+        with one_shot_session(settings, _mode_given()) as session:
+            yield MeshClient(session, settings)
+    except Problem as p:
+        raise click.ClickException(str(p)) from None
+
+
+def _mode_given() -> bool:
+    return click.get_current_context().find_root().params.get("mode") is not None
+
+
+def _parse_json(text: str, what: str) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise click.BadParameter(f"{what} is not valid JSON ({e.msg} at column {e.colno}): {text!r}") from None
+
+
+def _echo(value: Any) -> None:
+    click.echo(msgspec.json.encode(value).decode())
+
+
+@main.command()
+@click.pass_obj
+def things(settings: MeshSettings) -> None:
+    """List the Things alive on the mesh."""
+    with _client(settings) as c:
+        for name in c.things():
+            click.echo(name)
+
+
+@main.command()
+@click.argument("thing")
+@click.pass_obj
+def td(settings: MeshSettings, thing: str) -> None:
+    """Print a Thing's TD (with its Zenoh forms)."""
+    with _client(settings) as c:
+        click.echo(json.dumps(json.loads(c.td_bytes(thing)), indent=2))
+
+
+@main.command()
+@click.argument("thing")
+@click.argument("prop")
+@click.pass_obj
+def read(settings: MeshSettings, thing: str, prop: str) -> None:
+    """Read a property."""
+    with _client(settings) as c:
+        _echo(c.read(thing, prop))
+
+
+@main.command()
+@click.argument("thing")
+@click.argument("prop")
+@click.argument("value")
+@click.pass_obj
+def write(settings: MeshSettings, thing: str, prop: str, value: str) -> None:
+    """Write a property (VALUE is JSON, e.g. true, 42, '[1,0,0]')."""
+    data = _parse_json(value, "VALUE")
+    with _client(settings) as c:
+        c.write(thing, prop, data)
+
+
+@main.command()
+@click.argument("thing")
+@click.argument("action")
+@click.argument("input", required=False)
+@click.pass_obj
+def invoke(settings: MeshSettings, thing: str, action: str, input: str | None) -> None:
+    """Invoke an action (INPUT is JSON) and print its output."""
+    data = NOTHING if input is None else _parse_json(input, "INPUT")
+    with _client(settings) as c:
+        out = c.invoke(thing, action, data)
+        if out is not None:
+            _echo(out)
+
+
+@main.command(context_settings={"ignore_unknown_options": True})  # lets X Y Z be negative
+@click.argument("thing")
+@click.argument("xyz", nargs=-1, type=float, metavar="[X Y Z]")
+@click.option("--joints", metavar="JSON", help="Plan to these joint values instead ('{\"joint\": deg, ...}').")
+@click.pass_obj
+def plan(settings: MeshSettings, thing: str, xyz: tuple[float, ...], joints: str | None) -> None:
+    """Dry-run a robot move to X Y Z (mm, the robot TD's frame) or to --joints: print the path the move
+    would take, moving nothing. Exit 0 when the move would be accepted, 1 with the reason when refused."""
+    if (len(xyz) == 3) == (joints is not None) or len(xyz) not in (0, 3):
+        raise click.UsageError("give X Y Z, or --joints JSON")
+    request = {"joints": _parse_json(joints, "--joints")} if joints else dict(zip("xyz", xyz))
+    with _client(settings) as c:
+        _echo(c.invoke(thing, "planMove", request))
+
+
+def _follow(settings: MeshSettings, subscribe_name: str, thing: str, name: str, count: int | None) -> None:
+    import queue
+
+    q: queue.Queue = queue.Queue()
+    with _client(settings) as c:
+        found = c.check_affordance(thing, "properties" if subscribe_name == "observe" else "events", name)
+        if subscribe_name == "observe" and not getattr(found, "observable", False):
+            raise click.ClickException(f"property {name!r} of {thing} is not observable")
+        sub = getattr(c, subscribe_name)(thing, name, q.put)
+        click.echo(f"{subscribe_name} {thing}/{name}: waiting for changes (Ctrl-C to stop)", err=True)
+        seen = 0
+        try:
+            while count is None or seen < count:
+                try:
+                    _echo(q.get(timeout=0.5))
+                    seen += 1
+                except queue.Empty:
+                    continue
+        except KeyboardInterrupt:
+            pass
+        finally:
+            sub.undeclare()
+
+
+@main.command()
+@click.argument("thing")
+@click.argument("prop")
+@click.option("--count", type=int, help="Stop after this many changes.")
+@click.pass_obj
+def observe(settings: MeshSettings, thing: str, prop: str, count: int | None) -> None:
+    """Print each change of a property (one JSON value per line) until Ctrl-C."""
+    _follow(settings, "observe", thing, prop, count)
+
+
+@main.command()
+@click.argument("thing")
+@click.argument("event")
+@click.option("--count", type=int, help="Stop after this many events.")
+@click.pass_obj
+def subscribe(settings: MeshSettings, thing: str, event: str, count: int | None) -> None:
+    """Print each event (one JSON value per line) until Ctrl-C."""
+    _follow(settings, "subscribe", thing, event, count)

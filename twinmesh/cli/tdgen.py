@@ -1,0 +1,101 @@
+"""The `twinmesh tdgen` and `twinmesh check` commands (mounted on the twinmesh CLI by `twinmesh.cli.main`).
+
+Every failure a user can cause (a missing or broken URDF, a bad scene, too few calibration pairs,
+a workspace with no volume) ends as a one-line click error, never a traceback.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from twinmesh.robot.calibration import CalibrationError
+from twinmesh.robot.workspace_check import DEFAULT_K, DEFAULT_MAX_PROBABILITY, DEFAULT_RADIUS_MM, Workspace
+from twinmesh.tdgen.generate import DEFAULT_SAMPLES, generate
+from twinmesh.robot.model import Robot, RobotError
+from twinmesh.robot.surroundings import SceneError
+from twinmesh.robot.workspace import WorkspaceError
+
+USER_ERRORS = (RobotError, SceneError, CalibrationError, WorkspaceError)
+
+
+def _slug(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "-" for c in name.lower()).strip("-") or "robot"
+
+
+@click.command("tdgen")
+@click.argument("urdf")
+@click.option("--scene", help="Scene file, or a shipped scene: table-and-wall, cluttered-lab [default: the robot alone].")
+@click.option("--samples", type=click.IntRange(min=1), default=DEFAULT_SAMPLES, show_default=True,
+              help="Random joint configurations to sample.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed, same points).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), help="Output directory [default: td-<robot>].")
+@click.option("--base-url", help="Base URL the TD's forms and links are relative to.")
+@click.option("--calibration", type=click.Path(dir_okay=False),
+              help="CSV of twin_x,twin_y,twin_z,real_x,real_y,real_z pairs (mm).")
+@click.option("--calibration-model", type=click.Choice(["auto", "two-point", "per-axis", "affine"]),
+              default="auto", show_default=True, help="Calibration map to use for --frame real.")
+@click.option("--frame", type=click.Choice(["twin", "real"]), default="twin", show_default=True,
+              help="Frame of the TD's Cartesian data and of the artefacts (real needs --calibration).")
+@click.option("--ee", help="End-effector link [default: the end of the longest joint chain].")
+@click.option("--concave", is_flag=True, help="Also write an alpha shape, workspace-concave.stl.")
+@click.option("--title", help="TD title [default: the robot name].")
+@click.option("--id", "thing_id", help="TD id, an absolute URI [default: urn:twinmesh:robot:<name>].")
+@click.option("--workers", type=click.IntRange(min=1), help="Processes for collision checking [default: all cores].")
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir: str | None, base_url: str | None,
+                  calibration: str | None, calibration_model: str, frame: str, ee: str | None, concave: bool,
+                  title: str | None, thing_id: str | None, workers: int | None, no_progress: bool) -> None:
+    """Generate a robot's Thing Description and workspace artefacts from its URDF and its scene."""
+    try:
+        robot = Robot.load(urdf, ee=ee)
+        result = generate(robot, scene, samples, seed, Path(out_dir or f"td-{_slug(robot.name)}"), base_url,
+                          calibration, frame, concave, progress=not no_progress, title=title,
+                          thing_id=thing_id, workers=workers, calibration_model=calibration_model)
+    except USER_ERRORS as exc:
+        raise click.ClickException(str(exc)) from None
+    low, high = result.low_mm, result.high_mm
+    click.echo(f"{robot.name}: {result.samples} samples, {result.collision_free} collision-free "
+               f"({result.timings['sampling']:.1f} s sampling)")
+    click.echo(f"workspace hull: {result.volume_mm3 / 1e9:.4f} m^3"
+               + (f", alpha shape: {result.concave_volume_mm3 / 1e9:.4f} m^3"
+                  if result.concave_volume_mm3 is not None else ""))
+    click.echo("bounds (mm, {} frame): x {:.1f}..{:.1f}, y {:.1f}..{:.1f}, z {:.1f}..{:.1f}".format(
+        result.frame, low[0], high[0], low[1], high[1], low[2], high[2]))
+    if result.calibration is not None:
+        click.echo(f"calibration residuals (mm; * = the {result.calibration.used} map in use):")
+        click.echo(result.calibration.residual_table())
+    if concave and result.concave_volume_mm3 is None:
+        click.echo("no alpha shape: the collision-free points are too few or too flat", err=True)
+    for path in result.files.values():
+        click.echo(f"wrote {path}")
+
+
+@click.command("check", context_settings={"ignore_unknown_options": True})  # lets X Y Z be negative
+@click.argument("td_dir", type=click.Path(exists=True, file_okay=False))
+@click.argument("x", type=float)
+@click.argument("y", type=float)
+@click.argument("z", type=float)
+@click.option("--k", type=click.IntRange(min=1), default=DEFAULT_K, show_default=True,
+              help="Nearest sampled points the collision probability uses.")
+@click.option("--radius", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_RADIUS_MM, show_default=True,
+              help="Only sampled points within this distance (mm) count.")
+@click.option("--max-probability", type=click.FloatRange(0, 1), default=DEFAULT_MAX_PROBABILITY, show_default=True,
+              help="Refuse targets more likely than this to collide.")
+def check_command(td_dir: str, x: float, y: float, z: float, k: int, radius: float, max_probability: float) -> None:
+    """Check a target X Y Z (mm, the TD's frame) against a generated TD directory.
+
+    Exit code 0 when the robot may move there, 1 when the move is refused (the reason is printed).
+    """
+    try:
+        workspace = Workspace.load(td_dir)
+    except (OSError, ValueError, WorkspaceError) as exc:
+        raise click.ClickException(str(exc)) from None
+    result = workspace.check((x, y, z), k=k, radius=radius, max_probability=max_probability)
+    place = "inside" if result.inside else "outside"
+    probability = "unknown" if result.collision_probability is None else f"{result.collision_probability:.2f}"
+    click.echo(f"target ({x:g}, {y:g}, {z:g}) mm: {place} the workspace (margin {result.margin_mm:.1f} mm), "
+               f"collision probability {probability} from {result.neighbours} samples within {radius:g} mm")
+    click.echo(("OK: " if result.ok else "REFUSED: ") + result.reason)
+    if not result.ok:
+        raise click.exceptions.Exit(1)

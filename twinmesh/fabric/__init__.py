@@ -1,0 +1,1 @@
+"""The Zenoh binding: key expressions, settings, sessions, the Thing server, the client, discovery."""

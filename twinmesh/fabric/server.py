@@ -1,0 +1,278 @@
+"""The Thing runtime: serve one TD's affordances on Zenoh (the exposing side, like node-wot's ExposedThing).
+
+Given a TD and handlers, `ExposedThing` declares the TD queryable, a queryable per property
+(get = read, get with payload = write), per action and per linked file, publishers for property
+changes and events, and last the liveliness token, so that a Thing is never seen alive before it
+can answer. Zenoh callbacks only hand queries to a worker pool: handlers may block (a motion
+returns when it is over) without stalling the session.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Callable
+
+import msgspec
+
+from twinmesh.fabric.keys import NAME, Keys, check_name, check_slug
+from twinmesh.wot.payload import decode_json
+from twinmesh.wot.problem import BadInput, NotAllowed, NotFound, Problem
+from twinmesh.wot.td import ThingDescription, zenoh_forms
+from twinmesh.wot.validate import validate
+
+log = logging.getLogger(__name__)
+
+Read = Callable[[], Any]
+Write = Callable[[Any], None]
+Act = Callable[[Any], Any]
+FileSource = Callable[[], bytes]
+
+JSON_ENCODING = "application/json"
+NO_INPUT = None
+
+
+class ActionCall(msgspec.Struct, omit_defaults=True):
+    """Published on `<prefix>/<thing>/actions/<a>` after each invocation, so calls can be recorded."""
+
+    input: Any = None
+    output: Any = None
+    error: str | None = None
+    status: int = 200
+    seconds: float = 0.0
+
+
+class ExposedThing:
+    """One Thing on the mesh. Register handlers, then `expose()`; `destroy()` (or `with`) undeclares."""
+
+    def __init__(self, session, td: ThingDescription, name: str, keys: Keys | None = None,
+                 workers: int = 8):
+        self.session = session
+        self.name = check_slug(name)
+        self.keys = keys or Keys()
+        self.td = td
+        self._reads: dict[str, Read] = {}
+        self._writes: dict[str, Write] = {}
+        self._actions: dict[str, Act] = {}
+        self._files: dict[str, tuple[FileSource, str]] = {}
+        self._file_lookup: Callable[[str], tuple[bytes, str]] | None = None
+        self._values: dict[str, Any] = {}
+        self._lock = threading.Lock()
+        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=f"thing-{name}")
+        self._declared: list[Any] = []
+        self._publishers: dict[str, Any] = {}
+        self._td_json = b""
+        self._exposed = False
+
+    # --- handlers -------------------------------------------------------------------------
+    def on_read(self, prop: str, fn: Read) -> "ExposedThing":
+        self._need("properties", prop)
+        self._reads[prop] = fn
+        return self
+
+    def on_write(self, prop: str, fn: Write) -> "ExposedThing":
+        self._need("properties", prop)
+        self._writes[prop] = fn
+        return self
+
+    def on_action(self, action: str, fn: Act) -> "ExposedThing":
+        self._need("actions", action)
+        self._actions[action] = fn
+        return self
+
+    def on_file(self, name: str, source: FileSource, content_type: str) -> "ExposedThing":
+        self._files[check_name(name)] = (source, content_type)
+        return self
+
+    def on_any_file(self, lookup: Callable[[str], tuple[bytes, str]]) -> "ExposedThing":
+        """Serve every file name through one lookup, `name -> (bytes, content type)` (one queryable on
+        `files/*`), for Things whose files come and go (the tdgen service); raise NotFound for unknown
+        names. Use instead of `on_file`, not with it."""
+        self._file_lookup = lookup
+        return self
+
+    def state(self, prop: str, initial: Any) -> "ExposedThing":
+        """Back a property by a stored value: reads return it, writes store it and publish the change."""
+        self._need("properties", prop)
+        self._values[prop] = initial
+        self._reads[prop] = lambda: self.value(prop)
+        self._writes[prop] = lambda v: self.set_value(prop, v)
+        return self
+
+    def value(self, prop: str) -> Any:
+        with self._lock:
+            return self._values[prop]
+
+    def set_value(self, prop: str, value: Any) -> bool:
+        """Store a state-backed property; publish it if it changed. Returns whether it changed."""
+        with self._lock:
+            changed = self._values.get(prop, object()) != value
+            self._values[prop] = value
+        if changed:
+            self.emit_property_change(prop, value)
+        return changed
+
+    # --- publications -------------------------------------------------------------------
+    def emit_property_change(self, prop: str, value: Any) -> None:
+        self._publish(self.keys.property(self.name, prop), value)
+
+    def emit_event(self, event: str, data: Any = None) -> None:
+        self._need("events", event)
+        self._publish(self.keys.event(self.name, event), data)
+
+    def _truthful(self, td: ThingDescription) -> ThingDescription:
+        """The TD as the handlers serve it: a property nobody writes is `readOnly` (its forms then offer
+        no writeproperty), one nobody reads `writeOnly`, so a TD never offers what no handler does."""
+        props = {}
+        for name, p in td.properties.items():
+            read_only = True if name not in self._writes else p.readOnly
+            write_only = True if name not in self._reads else p.writeOnly
+            props[name] = msgspec.structs.replace(p, readOnly=read_only, writeOnly=write_only)
+        return msgspec.structs.replace(td, properties=props)
+
+    def update_td(self, td: ThingDescription) -> None:
+        """Replace the TD (e.g. a regenerated robot TD) and tell observers of `<thing>/td`."""
+        td = self._truthful(td)
+        self.td = td
+        self._td_json = zenoh_forms(td, self.keys.prefix, self.name).to_json()
+        if self._exposed:
+            self.session.put(self.keys.td(self.name), self._td_json, encoding=JSON_ENCODING)
+
+    def _publish(self, key: str, value: Any) -> None:
+        if not self._exposed:
+            return
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self._publishers[key] = self.session.declare_publisher(key, encoding=JSON_ENCODING)
+        pub.put(msgspec.json.encode(value))
+
+    # --- lifecycle ----------------------------------------------------------------------
+    def expose(self) -> "ExposedThing":
+        missing = [p for p in self.td.properties if p not in self._reads and not self.td.properties[p].writeOnly]
+        missing += [a for a in self.td.actions if a not in self._actions]
+        if missing:
+            raise ValueError(f"{self.name}: no handler for {', '.join(missing)}")
+        self.td = self._truthful(self.td)
+        self._td_json = zenoh_forms(self.td, self.keys.prefix, self.name).to_json()
+        k, s = self.keys, self.session
+        def serve(key: str, answer: Callable[..., bytes | None], *args: Any, acts: str = "") -> None:
+            self._declared.append(s.declare_queryable(key, self._dispatch(key, acts, answer, *args)))
+
+        serve(k.td(self.name), self._answer_td)
+        for p in self.td.properties:
+            serve(k.property(self.name, p), self._answer_property, p, acts="with-payload")
+        for a in self.td.actions:
+            serve(k.action(self.name, a), self._answer_action, a, acts="always")
+        for f in self._files:
+            serve(k.file(self.name, f), self._answer_file, f)
+        if self._file_lookup is not None:
+            self._declared.append(s.declare_queryable(k.file(self.name, "*"), self._any_file))
+        self._exposed = True
+        self._declared.append(s.liveliness().declare_token(k.alive(self.name)))
+        return self
+
+    def destroy(self) -> None:
+        self._exposed = False
+        for d in reversed(self._declared):
+            try:
+                d.undeclare()
+            except Exception:  # the session may already be closing
+                pass
+        self._declared.clear()
+        for pub in self._publishers.values():
+            try:
+                pub.undeclare()
+            except Exception:
+                pass
+        self._publishers.clear()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def __enter__(self) -> "ExposedThing":
+        return self.expose()
+
+    def __exit__(self, *exc) -> None:
+        self.destroy()
+
+    # --- query handling (worker threads) ----------------------------------------------------
+    def _dispatch(self, key: str, acts: str, answer: Callable[..., bytes | None], *args: Any):
+        """A queryable's callback for the concrete `key`; `acts` says when a query changes something
+        ("with-payload": writes, "always": actions), which only a query on exactly `key` may do."""
+        def callback(query) -> None:  # runs on a Zenoh thread: never block here
+            self._pool.submit(self._serve, query, key, acts, answer, args)
+        return callback
+
+    def _any_file(self, query) -> None:  # Zenoh thread: the file name is the last chunk of the key
+        key = str(query.key_expr)
+        name = key.rsplit("/", 1)[-1]
+        if not NAME.match(name):  # a wildcard query for files: answer for no name rather than for "**"
+            return
+        self._pool.submit(self._serve, query, key, "", lambda _payload: self._file_lookup(name), ())
+
+    def _serve(self, query, key: str, acts: str, answer, args) -> None:
+        try:
+            payload = query.payload.to_bytes() if query.payload is not None else None
+            asked = str(query.key_expr)
+            if asked != key and (acts == "always" or (acts == "with-payload" and payload is not None)):
+                raise BadInput(f"{key}: writes and actions run only for a query on their exact key, not on "
+                               f"{asked}")
+            out = answer(payload, *args)
+            out, encoding = out if isinstance(out, tuple) else (out, JSON_ENCODING)
+            query.reply(key, out if out is not None else b"", encoding=encoding)  # the concrete key answers
+        except Problem as p:
+            query.reply_err(p.to_json(), encoding="application/problem+json")
+        except Exception as e:  # a device bug must still answer, not time out
+            log.exception("%s: handler failed", self.name)
+            query.reply_err(Problem(f"{type(e).__name__}: {e}").to_json(), encoding="application/problem+json")
+        finally:
+            query.drop()
+
+    def _answer_td(self, payload: bytes | None) -> bytes:
+        return self._td_json
+
+    def _answer_property(self, payload: bytes | None, prop: str) -> bytes | None:
+        aff = self.td.properties[prop]
+        if payload is None:
+            if aff.writeOnly or prop not in self._reads:
+                raise NotAllowed(f"property {prop!r} of {self.name} is not readable")
+            return msgspec.json.encode(self._reads[prop]())
+        if aff.readOnly or prop not in self._writes:
+            raise NotAllowed(f"property {prop!r} of {self.name} is read-only")
+        value = decode_json(payload, f"the value for {prop!r}")
+        validate(value, aff, path=prop)
+        self._writes[prop](value)
+        return None
+
+    def _answer_action(self, payload: bytes | None, action: str) -> bytes | None:
+        aff = self.td.actions[action]
+        value = None
+        if aff.input is None and payload is not None and payload.strip() not in (b"", b"null"):
+            raise BadInput(f"action {action!r} takes no input; send none (or null)")
+        if aff.input is not None:
+            if not payload:
+                raise BadInput(f"action {action!r} needs an input")
+            value = decode_json(payload, f"the input of {action!r}")
+            validate(value, aff.input, path="input")
+        started = time.monotonic()
+        try:
+            out = self._actions[action](value)
+        except Problem as p:
+            self._publish_call(action, ActionCall(input=value, error=str(p), status=p.status,
+                                                  seconds=time.monotonic() - started))
+            raise
+        self._publish_call(action, ActionCall(input=value, output=out, seconds=time.monotonic() - started))
+        return None if out is None else msgspec.json.encode(out)
+
+    def _publish_call(self, action: str, call: "ActionCall") -> None:
+        """Tell observers of the mesh (the recorder) that an action ran: a put on the action's key."""
+        self._publish(self.keys.action(self.name, action), call)
+
+    def _answer_file(self, payload: bytes | None, name: str) -> tuple[bytes, str]:
+        source, content_type = self._files.get(name, (None, ""))
+        if source is None:
+            raise NotFound(f"{self.name} has no file {name!r}")
+        return source(), content_type
+
+    def _need(self, kind: str, name: str) -> None:
+        if name not in getattr(self.td, kind):
+            raise ValueError(f"{self.name}: the TD has no {kind[:-1] if kind != 'properties' else 'property'} {name!r}")

@@ -1,0 +1,109 @@
+"""Optional HTTP security: one `bearer` token or one `basic` user/password for the whole adapter.
+
+What is protected: every affordance (properties, actions, events, both long-poll and SSE) and the
+linked files. What stays public: discovery, i.e. the TDs (`/{thing}`, `/things`, `/things/{id}`,
+`/.well-known/wot`, `/`), because a WoT client fetches a TD before it knows which credentials to
+use (node-wot looks credentials up by the TD's `id`) and the TDs are what declare the scheme.
+
+SSE and auth: node-wot 0.9.2's SSE client (the `eventsource` package) sends no Authorization
+header, so with auth on, node-wot can only observe over long-poll; that is why the long-poll form
+comes first in every TD (node-wot picks the first matching form). The SSE endpoints are NOT
+exempted: an exemption would leak every value to anyone. Clients that can set headers (browsers'
+fetch-based SSE, curl, httpx) use SSE with credentials as usual.
+"""
+from __future__ import annotations
+
+import base64
+import binascii
+import hmac
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from twinmesh.http.problems import problem_response, with_headers
+from twinmesh.wot.problem import Unauthorized
+
+Scheme = Literal["bearer", "basic"]
+REALM = "twinmesh"
+
+
+@dataclass(frozen=True)
+class Auth:
+    """The configured credentials. `secret` is the token, or `user:password` for basic."""
+
+    scheme: Scheme
+    secret: str = field(repr=False)
+
+    def accepts(self, authorization: str | None) -> bool:
+        """Whether an `Authorization` header value carries the configured credentials."""
+        if not authorization:
+            return False
+        kind, _, value = authorization.strip().partition(" ")
+        if kind.lower() != self.scheme:
+            return False
+        value = value.strip()
+        if self.scheme == "basic":
+            try:
+                value = base64.b64decode(value, validate=True).decode("utf-8")
+            except (binascii.Error, UnicodeDecodeError):
+                return False
+        return hmac.compare_digest(value.encode(), self.secret.encode())  # constant time
+
+    def challenge(self) -> str:
+        if self.scheme == "basic":
+            return f'Basic realm="{REALM}", charset="UTF-8"'
+        return f'Bearer realm="{REALM}"'
+
+    def security(self) -> tuple[dict[str, dict[str, Any]], list[str]]:
+        """`(securityDefinitions, security)` for the TDs."""
+        if self.scheme == "basic":
+            return {"basic_sc": {"scheme": "basic", "in": "header", "name": "Authorization"}}, ["basic_sc"]
+        # an opaque token, not a JWT: say so rather than let the `jwt` default stand
+        return {"bearer_sc": {"scheme": "bearer", "in": "header", "name": "Authorization",
+                              "format": "opaque"}}, ["bearer_sc"]
+
+
+def parse_auth(spec: str | None) -> Auth | None:
+    """`bearer:TOKEN` or `basic:USER:PASS` (the password may contain ':'); empty means no security."""
+    if not spec:
+        return None
+    scheme, _, rest = spec.partition(":")
+    if scheme == "bearer" and rest:
+        return Auth("bearer", rest)
+    if scheme == "basic":
+        user, sep, password = rest.partition(":")
+        if user and sep and password:
+            return Auth("basic", f"{user}:{password}")
+    raise ValueError("auth must be bearer:TOKEN or basic:USER:PASS")
+
+
+def is_public(path: str) -> bool:
+    """Discovery paths: the TDs and the directory (see the module docstring)."""
+    segments = [s for s in path.split("/") if s]
+    return len(segments) <= 1 or segments[0] in ("things", ".well-known")
+
+
+class AuthMiddleware:
+    """Pure ASGI middleware: 401 problem+json with `WWW-Authenticate` unless the credentials match.
+
+    Runs inside the CORS middleware, so browsers' preflight requests (which carry no credentials)
+    are answered before they get here.
+    """
+
+    def __init__(self, app: ASGIApp, auth: Auth):
+        self.app = app
+        self.auth = auth
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or is_public(scope["path"]):
+            await self.app(scope, receive, send)
+            return
+        header = next((v.decode("latin-1") for k, v in scope["headers"] if k == b"authorization"), None)
+        if self.auth.accepts(header):
+            await self.app(scope, receive, send)
+            return
+        detail = "credentials required" if header is None else "wrong credentials"
+        problem = with_headers(Unauthorized(f"{detail} ({self.auth.scheme}, see the TD's securityDefinitions)"),
+                               {"WWW-Authenticate": self.auth.challenge()})
+        await problem_response(problem, scope["path"])(scope, receive, send)

@@ -1,0 +1,350 @@
+"""The adapter's view of the mesh: known Things, their TDs, last property values and observers.
+
+Fed by two Zenoh subscriptions: the `Directory` (liveliness join/leave) and one subscriber on
+`<prefix>/**` (property changes, events, TD updates). Their callbacks run on Zenoh threads and only
+hop onto the event loop (`call_soon_threadsafe`); all state here is touched on the loop alone, so
+it needs no locks. Blocking Zenoh queries run in worker threads (`anyio.to_thread`, a generous
+limiter: an action may block for minutes while a robot moves).
+
+Caching, and why it is safe: the last published value of an observable property is served
+without a round trip while it is fresh, i.e. received while we were subscribed (an observable
+property publishes every change), younger than `max_age` (a safety net against lost samples) and
+not older than the start of the last write/invoke through the adapter (a device publishes a change
+before it replies, so anything received after the mutation started is at least as new as it).
+A read that raced with a publication does not overwrite the published value.
+"""
+from __future__ import annotations
+
+import asyncio
+import functools
+import logging
+import time
+from contextlib import AbstractContextManager
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import anyio
+import anyio.to_thread
+import msgspec
+
+from twinmesh.fabric.client import MeshClient, Reply
+from twinmesh.fabric.directory import Directory
+from twinmesh.http.observers import Change, Feed, Observers
+from twinmesh.http.problems import unavailable
+from twinmesh.http.tdrewrite import with_types
+from twinmesh.wot.payload import JSON_ERRORS, decode_json
+from twinmesh.wot.problem import BadGateway, BadInput, NotFound, Problem, Unavailable
+from twinmesh.fabric.settings import MeshSettings
+from twinmesh.wot.td import ThingDescription, decode_td
+from twinmesh.wot.validate import validate
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Cached:
+    payload: bytes
+    at: float  # monotonic
+
+
+@dataclass
+class ThingEntry:
+    name: str
+    alive: bool = True
+    td: ThingDescription | None = None
+    td_error: str | None = None
+    generation: int = 0  # bumped on each join: a stale TD fetch must not win
+    fetch: asyncio.Task | None = None
+    values: dict[str, _Cached] = field(default_factory=dict)
+    samples: dict[str, int] = field(default_factory=dict)  # publications seen per property
+    epoch: int = 0  # bumped around each write/invoke through the adapter
+    rendered: dict[str, bytes] = field(default_factory=dict)  # HTTP TD JSON by base URL
+    dropped: dict[str, int] = field(default_factory=dict)  # publications refused per affordance (forged, broken)
+    refetching: bool = False  # a TD change was announced: readers wait for the Thing's own TD
+
+
+class Registry:
+    """Start with `await start()` on the serving loop; `begin_shutdown()` ends every observer."""
+
+    def __init__(self, session, settings: MeshSettings, *, max_age: float = 5.0, fetch_attempts: int = 8,
+                 threads: int = 256, feed_size: int = 256, shutdown_grace: float = 0.8):
+        self.client = MeshClient(session, settings)
+        self.settings = settings
+        self.keys = settings.keys
+        self.max_age = max_age
+        self.fetch_attempts = fetch_attempts
+        self.threads = threads
+        self.shutdown_grace = shutdown_grace
+        self.closing = False
+        self._things: dict[str, ThingEntry] = {}
+        self.observers = Observers(feed_size)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._limiter: anyio.CapacityLimiter | None = None
+        self._deadline: asyncio.Future[None] | None = None  # resolved `shutdown_grace` after shutdown began
+        self._declared: list[Any] = []
+
+    # --- lifecycle ---------------------------------------------------------------------------
+    async def start(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._deadline = self._loop.create_future()
+        self._limiter = anyio.CapacityLimiter(self.threads)
+        session = self.client.session
+        self._declared.append(await self.call(session.declare_subscriber, self.keys.everything(), self._sample))
+        self._declared.append(await self.call(Directory, session, self.keys, self._joined, self._left))
+
+    def begin_shutdown(self) -> None:
+        """End long-polls and SSE streams now, so that the server can stop with them open."""
+        if not self.closing:
+            self._loop.call_later(self.shutdown_grace, _resolve, self._deadline)  # type: ignore[union-attr]
+        self.closing = True
+        self.observers.close_all()
+
+    async def close(self) -> None:
+        for entry in self._things.values():
+            if entry.fetch:
+                entry.fetch.cancel()
+        for d in reversed(self._declared):  # not via call(): its shutdown deadline has passed
+            await anyio.to_thread.run_sync(_undeclare, d)
+        self._declared.clear()
+
+    async def call(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """Run a blocking (Zenoh) call in a worker thread.
+
+        A cancelled request does not wait for its thread; once shutdown began, calls still running
+        after `shutdown_grace` answer 503 (the thread is released when the session closes).
+        """
+        work = asyncio.ensure_future(anyio.to_thread.run_sync(
+            functools.partial(fn, *args), limiter=self._limiter, abandon_on_cancel=True))
+        try:
+            await asyncio.wait({work, self._deadline}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            if not work.done():
+                work.cancel()
+        if not work.done() or work.cancelled():
+            raise unavailable("the adapter is shutting down", retry_after=1)
+        return work.result()
+
+    # --- Zenoh threads: hop to the loop, never block -----------------------------------------
+    def _soon(self, fn: Callable[..., None], *args: Any) -> None:
+        try:
+            self._loop.call_soon_threadsafe(fn, *args)  # type: ignore[union-attr]
+        except RuntimeError:  # the loop is closed: we are shutting down
+            pass
+
+    def _sample(self, sample) -> None:
+        parsed = self.keys.parse(str(sample.key_expr))
+        if parsed is not None and parsed.kind in ("properties", "events", "td") and str(sample.kind).endswith("PUT"):
+            self._soon(self._on_sample, parsed.thing, parsed.kind, parsed.name, sample.payload.to_bytes())
+
+    def _joined(self, thing: str) -> None:
+        self._soon(self._on_join, thing)
+
+    def _left(self, thing: str) -> None:
+        self._soon(self._on_leave, thing)
+
+    # --- on the loop -------------------------------------------------------------------------
+    def _on_join(self, thing: str) -> None:
+        entry = self._things.setdefault(thing, ThingEntry(thing))
+        entry.alive = True
+        entry.generation += 1
+        entry.td, entry.td_error = None, None
+        entry.values.clear()
+        entry.rendered.clear()
+        entry.fetch = asyncio.ensure_future(self._fetch_td(entry, entry.generation))
+        log.info("%s joined the mesh", thing)
+
+    def _on_leave(self, thing: str) -> None:
+        entry = self._things.get(thing)
+        if entry is None:
+            return
+        entry.alive = False
+        entry.values.clear()
+        if entry.fetch:
+            entry.fetch.cancel()
+        self.observers.thing_left(thing)
+        log.info("%s left the mesh", thing)
+
+    def _on_sample(self, thing: str, kind: str, name: str, payload: bytes) -> None:
+        entry = self._things.get(thing)
+        if entry is None or not entry.alive:
+            return
+        if kind == "td":
+            # a published TD is only a hint that it changed: anyone on the mesh can put one, so the
+            # TD is asked of the Thing itself (its queryable), as on a join
+            entry.generation += 1
+            if entry.fetch:
+                entry.fetch.cancel()
+            entry.refetching = True
+            entry.fetch = asyncio.ensure_future(self._fetch_td(entry, entry.generation))
+            entry.fetch.add_done_callback(lambda done: self._refetched(entry, done))
+            return
+        why = self._invalid(entry, kind, name, payload)
+        if why is not None:
+            key = f"{kind}/{name}"
+            entry.dropped[key] = entry.dropped.get(key, 0) + 1
+            if entry.dropped[key] == 1:
+                log.warning("%s: dropped a publication on %s that its TD does not allow (%s); further ones are "
+                            "dropped silently", thing, key, why)
+            return
+        if kind == "properties":
+            entry.samples[name] = entry.samples.get(name, 0) + 1
+            if self._observable(entry, name):
+                entry.values[name] = _Cached(payload, time.monotonic())
+        self.observers.publish(thing, kind, Change(name, payload, time.time()))
+
+    @staticmethod
+    def _refetched(entry: ThingEntry, done: asyncio.Future) -> None:
+        if entry.fetch is done:  # not a fetch that a newer announcement replaced
+            entry.refetching = False
+
+    @staticmethod
+    def _invalid(entry: ThingEntry, kind: str, name: str, payload: bytes) -> str | None:
+        """Why a published value must not be served (None when it may): no TD to check it with, an
+        affordance the TD lacks, a payload that is not JSON or breaks the affordance's schema."""
+        if entry.td is None:
+            return "its TD is not known yet"
+        affordance = entry.td.affordance(kind, name)  # type: ignore[arg-type]
+        if affordance is None:
+            return "no such affordance"
+        schema = affordance if kind == "properties" else affordance.data
+        try:
+            value = decode_json(payload, f"{kind}/{name}") if payload else None
+            if payload or schema is not None and kind == "properties":
+                validate(value, schema, name)
+        except BadInput as e:
+            return e.detail
+        return None
+
+    async def _fetch_td(self, entry: ThingEntry, generation: int) -> None:
+        """A fresh peer's queryables may take a moment to reach us: retry with backoff."""
+        delay, last = 0.05, None
+        for _ in range(self.fetch_attempts):
+            try:
+                reply = await self.call(self.client.request, self.keys.td(entry.name), None, None, entry.name)
+            except Problem as p:
+                last = p
+            else:
+                if entry.generation == generation:
+                    self._set_td(entry, reply.payload)
+                return
+            if entry.generation != generation or not entry.alive:
+                return
+            await asyncio.sleep(delay)
+            delay = min(delay * 2, 2.0)
+        log.warning("%s: no TD after %d attempts (%s)", entry.name, self.fetch_attempts, last)
+
+    def _set_td(self, entry: ThingEntry, payload: bytes) -> None:
+        try:
+            entry.td, entry.td_error = with_types(decode_td(payload)), None
+        except (msgspec.ValidationError, *JSON_ERRORS) as e:
+            entry.td_error = f"{entry.name} serves an invalid TD: {e}"
+            log.warning(entry.td_error)
+        entry.values.clear()
+        entry.rendered.clear()
+
+    @staticmethod
+    def _observable(entry: ThingEntry, prop: str) -> bool:
+        p = entry.td.properties.get(prop) if entry.td else None
+        return bool(p and p.observable)
+
+    # --- for the routes ----------------------------------------------------------------------
+    def names(self) -> list[str]:
+        """Things alive with a known TD, sorted."""
+        return sorted(n for n, e in self._things.items() if e.alive and e.td is not None)
+
+    def known_tds(self) -> dict[str, ThingDescription]:
+        """Every TD seen, of Things alive or gone (a gone one still answers 503, not 404)."""
+        return {n: e.td for n, e in sorted(self._things.items()) if e.td is not None}
+
+    def _entry(self, thing: str) -> ThingEntry:
+        if self.closing:
+            raise unavailable("the adapter is shutting down", retry_after=1)
+        entry = self._things.get(thing)
+        if entry is None:
+            raise NotFound(f"no Thing {thing!r} on the mesh")
+        if not entry.alive:
+            raise unavailable(f"{thing} has left the mesh")
+        return entry
+
+    async def td(self, thing: str) -> ThingDescription:
+        """The Thing's mesh TD; waits for a fetch in progress. 404 unknown, 503 gone or not yet known."""
+        entry = self._entry(thing)
+        if entry.refetching and entry.fetch is not None and not entry.fetch.done():
+            await asyncio.wait({entry.fetch}, timeout=self.settings.query_timeout)  # the TD that was announced
+            entry = self._entry(thing)
+        if entry.td is None and entry.td_error is None:
+            if entry.fetch is None or entry.fetch.done():
+                entry.fetch = asyncio.ensure_future(self._fetch_td(entry, entry.generation))
+            await asyncio.wait({entry.fetch}, timeout=self.settings.query_timeout)  # never raises its outcome
+            entry = self._entry(thing)
+        if entry.td_error:
+            raise BadGateway(entry.td_error)
+        if entry.td is None:
+            raise unavailable(f"{thing}'s TD could not be fetched yet", retry_after=1)
+        return entry.td
+
+    def render(self, thing: str, base: str, make: Callable[[ThingDescription], bytes]) -> bytes:
+        """The HTTP TD for a base URL, made once per TD version (call after `td()`)."""
+        entry = self._entry(thing)
+        out = entry.rendered.get(base)
+        if out is None:
+            if len(entry.rendered) >= 8:  # bases come from Host headers: bound them
+                entry.rendered.clear()
+            out = entry.rendered[base] = make(entry.td)  # type: ignore[arg-type]
+        return out
+
+    async def read(self, thing: str, prop: str) -> bytes:
+        entry = self._entry(thing)
+        cached = entry.values.get(prop)
+        if cached is not None and time.monotonic() - cached.at <= self.max_age:
+            return cached.payload
+        before = (entry.generation, entry.epoch, entry.samples.get(prop, 0))
+        reply: Reply = await self.call(self.client.request, self.keys.property(thing, prop), None, None, thing)
+        if (entry.alive and (entry.generation, entry.epoch, entry.samples.get(prop, 0)) == before
+                and self._observable(entry, prop)):
+            entry.values[prop] = _Cached(reply.payload, time.monotonic())
+        return reply.payload
+
+    async def write(self, thing: str, prop: str, payload: bytes) -> None:
+        await self._mutate(thing, self.keys.property(thing, prop), payload, self.settings.query_timeout)
+
+    async def invoke(self, thing: str, action: str, payload: bytes | None) -> bytes:
+        return await self._mutate(thing, self.keys.action(thing, action), payload, self.settings.action_timeout)
+
+    async def _mutate(self, thing: str, key: str, payload: bytes | None, timeout: float) -> bytes:
+        entry = self._entry(thing)
+        started = time.monotonic()
+        entry.epoch += 1
+        try:
+            reply: Reply = await self.call(self.client.request, key, payload, timeout, thing)
+        finally:
+            entry.epoch += 1
+            entry.values = {k: v for k, v in entry.values.items() if v.at >= started}
+        return reply.payload
+
+    async def file(self, thing: str, name: str) -> Reply:
+        """A linked file. Files are not in the TD's affordances: a Thing that is alive but has no
+        queryable for the name answers nothing at all, which means 404 here, not 503."""
+        self._entry(thing)
+        try:
+            return await self.call(self.client.request, self.keys.file(thing, name), None, None, thing)
+        except (Unavailable, NotFound):
+            self._entry(thing)
+            raise NotFound(f"{thing} has no file {name!r}") from None
+
+    def watch(self, thing: str, kind: str, names: list[str]) -> AbstractContextManager[Feed]:
+        """A feed of the named properties' changes or events, registered on entry (call after `td()`)."""
+        self._entry(thing)
+        return self.observers.watch(thing, kind, names)
+
+
+def _resolve(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)
+
+
+def _undeclare(declared: Any) -> None:
+    try:
+        (declared.close if isinstance(declared, Directory) else declared.undeclare)()
+    except Exception:  # the session may already be closing
+        pass

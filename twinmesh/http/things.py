@@ -1,0 +1,107 @@
+"""Discovery and files: each Thing's TD, the TDD-style directory, `/.well-known/wot`, linked files.
+
+| route | what |
+|---|---|
+| `GET /` | URLs of the Things' TDs (as node-wot's servient answers `/`) |
+| `GET /.well-known/wot` | the directory's own TD (a WoT Discovery Thing Description Directory) |
+| `GET /things?offset=&limit=` | all TDs, a TDD listing (`application/ld+json` array; `Link: rel=next` when paged) |
+| `GET /things/{id}` | one TD by its (URL-encoded) `id` |
+| `GET /{thing}` | the Thing's TD |
+| `GET /{thing}/files/{name}` | a linked file, with the content type the device gave it |
+
+TDs are `application/td+json` whatever the Accept header says (node-wot asks with `*/*`).
+"""
+from __future__ import annotations
+
+import re
+
+import msgspec
+from starlette.requests import Request
+from starlette.responses import Response
+from starlette.routing import Route
+
+from twinmesh.http.context import base_url, registry, security, thing_name
+from twinmesh.http.tdrewrite import LD_JSON, TD_JSON, directory_td, http_td, served_id
+from twinmesh.fabric.keys import NAME
+from twinmesh.wot.problem import BadInput, NotFound, Problem
+from twinmesh.wot.td import JSON
+
+
+async def _td_bytes(request: Request, thing: str) -> bytes:
+    reg = registry(request)
+    await reg.td(thing)
+    base, sec = base_url(request), security(request)
+    return reg.render(thing, base, lambda td: msgspec.json.encode(http_td(td, thing, base, sec)))
+
+
+async def thing_description(request: Request) -> Response:
+    return Response(await _td_bytes(request, thing_name(request)), media_type=TD_JSON)
+
+
+async def index(request: Request) -> Response:
+    base = base_url(request)
+    return Response(msgspec.json.encode([f"{base}/{n}" for n in registry(request).names()]), media_type=JSON)
+
+
+async def well_known(request: Request) -> Response:
+    body = directory_td(base_url(request), registry(request).keys.prefix)
+    return Response(msgspec.json.encode(body), media_type=TD_JSON)
+
+
+def _page_arg(request: Request, name: str, minimum: int) -> int | None:
+    raw = request.query_params.get(name)
+    if raw is None:
+        return None
+    if not re.fullmatch(r"[0-9]{1,9}", raw) or int(raw) < minimum:  # str.isdigit() takes '²', int() does not
+        raise BadInput(f"{name} must be an integer >= {minimum}, not {raw!r}")
+    return int(raw)
+
+
+async def listing(request: Request) -> Response:
+    """All TDs, in name order; `offset`/`limit` page it (the TDD API's uriVariables)."""
+    if request.query_params.get("format", "array") != "array":
+        raise BadInput("format: only 'array' is supported")
+    offset = _page_arg(request, "offset", 0) or 0
+    limit = _page_arg(request, "limit", 1)
+    names = registry(request).names()
+    page = names[offset:] if limit is None else names[offset:offset + limit]
+    tds = []
+    for name in page:
+        try:
+            tds.append(await _td_bytes(request, name))
+        except Problem:  # it left while we listed: leave it out
+            continue
+    headers = {}
+    if limit is not None and offset + limit < len(names):
+        headers["Link"] = f'</things?offset={offset + limit}&limit={limit}>; rel="next"'
+    return Response(b"[" + b",".join(tds) + b"]", media_type=LD_JSON, headers=headers)
+
+
+async def by_id(request: Request) -> Response:
+    """The TDD's retrieveThing; a Thing that was listed and left answers 503, like its own URL."""
+    wanted = request.path_params["id"]
+    for name, td in registry(request).known_tds().items():
+        if served_id(td, name) == wanted:
+            return Response(await _td_bytes(request, name), media_type=TD_JSON)
+    raise NotFound(f"no TD with id {wanted!r}")
+
+
+async def linked_file(request: Request) -> Response:
+    thing = thing_name(request)
+    name = request.path_params["name"]
+    if not NAME.match(name):  # never a wildcard or reserved character into a key expression
+        raise NotFound(f"{thing} has no file {name!r} (file names are letters, digits, '_', '.', '-')")
+    reply = await registry(request).file(thing, name)
+    return Response(reply.payload, media_type=reply.encoding or "application/octet-stream")
+
+
+routes_top = [
+    Route("/", index, methods=["GET"]),
+    Route("/.well-known/wot", well_known, methods=["GET"]),
+    Route("/things", listing, methods=["GET"]),
+    Route("/things/{id:path}", by_id, methods=["GET"]),
+]
+routes_thing = [
+    Route("/{thing}", thing_description, methods=["GET"]),
+    Route("/{thing}/files/{name}", linked_file, methods=["GET"]),
+]

@@ -1,0 +1,1 @@
+"""Running a lab: scenes (which processes), their entry points, the supervisor, readiness."""

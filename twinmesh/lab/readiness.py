@@ -1,0 +1,180 @@
+"""When is a lab ready, and how does anyone else find out: the `up` side and the `wait` side.
+
+`twinmesh up` calls it ready once every Thing of its scene answers its TD on the mesh and, with
+the HTTP adapter, once the adapter lists them all; only then does it print its one `ready` line
+and answer on `<prefix>/_lab/status` (a queryable that no Thing key matches: `_lab` is not a
+slug). `twinmesh wait` asks that key until it says ready, or, given Thing names, asks those
+Things for their TDs. Before anything starts, `free_or_problem` checks that the ports a lab
+listens on are free, so a taken port is one clear line, not a traceback after a false banner.
+"""
+from __future__ import annotations
+
+import socket
+import time
+from typing import Callable, Iterable
+
+import msgspec
+
+from twinmesh.wot.problem import Problem, Unavailable
+from twinmesh.fabric.settings import MeshSettings
+
+STATUS_CHUNK = "_lab/status"
+
+
+class PortTaken(Problem):
+    status, slug, title = 409, "port-taken", "Address in use"
+
+
+class LabDied(Unavailable):
+    slug, title = "lab-died", "A process of the lab exited"
+
+
+class LabStatus(msgspec.Struct, kw_only=True):
+    """What `<prefix>/_lab/status` answers: enough for a script to find the lab's doors."""
+
+    ready: bool
+    scene: str
+    things: list[str]
+    http: str | None = None   # base URL of the HTTP adapter, if one runs
+    zenoh: str = ""           # the endpoint the lab's router listens on
+
+
+def status_key(settings: MeshSettings) -> str:
+    return f"{settings.prefix}/{STATUS_CHUNK}"
+
+
+def tcp_address(endpoint: str) -> tuple[str, int] | None:
+    """(host, port) of a `tcp/HOST:PORT` (or tls/quic/udp) endpoint; None for other kinds."""
+    proto, _, rest = endpoint.partition("/")
+    if proto not in ("tcp", "tls", "udp", "quic") or not rest:
+        return None
+    host, _, port = rest.split("#", 1)[0].rpartition(":")
+    if not port.isdigit():
+        return None
+    return host.strip("[]"), int(port)
+
+
+def port_in_use(host: str, port: int, udp: bool = False) -> str | None:
+    """Why `host:port` cannot be listened on (in use, no such address), or None when it can."""
+    if port == 0:
+        return None
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_DGRAM if udp else socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a TIME_WAIT leftover is no obstacle
+        try:
+            s.bind((host, port))
+        except OSError as e:
+            return e.strerror or str(e)
+    return None
+
+
+def free_or_problem(zenoh_endpoints: Iterable[str], http: tuple[str, int] | None) -> None:
+    """Raise PortTaken naming the first address a lab could not listen on, and the option that changes it."""
+    for endpoint in zenoh_endpoints:
+        addr = tcp_address(endpoint)
+        if addr is None:
+            continue
+        why = port_in_use(*addr, udp=endpoint.startswith(("udp/", "quic/")))
+        if why:
+            raise PortTaken(f"the Zenoh endpoint {endpoint} cannot be listened on ({why}); "
+                            "choose another with --zenoh ENDPOINT (e.g. tcp/127.0.0.1:7448)")
+    if http is not None:
+        why = port_in_use(*http)
+        if why:
+            raise PortTaken(f"the HTTP address {http[0]}:{http[1]} cannot be listened on ({why}); "
+                            "choose another with --http HOST:PORT, or --no-http")
+
+
+def serve_status(session, settings: MeshSettings, status: LabStatus):
+    """Answer `<prefix>/_lab/status` with `status` (the caller keeps the queryable and undeclares it)."""
+    payload = msgspec.json.encode(status)
+
+    def answer(query) -> None:  # Zenoh thread: no blocking work, the reply is ready
+        query.reply(status_key(settings), payload, encoding="application/json")
+
+    return session.declare_queryable(status_key(settings), answer)
+
+
+def missing_tds(client, things: Iterable[str], timeout: float = 1.0) -> list[str]:
+    """The Things among `things` that do not answer their TD now."""
+    missing = []
+    for thing in things:
+        try:
+            client.request(client.keys.td(thing), timeout=timeout, thing=thing)
+        except Problem:
+            missing.append(thing)
+    return missing
+
+
+def missing_over_http(base_url: str, things: Iterable[str]) -> list[str]:
+    """The Things that the adapter at `base_url` does not list yet (all of them if it does not answer)."""
+    import httpx
+
+    things = list(things)
+    try:
+        listed = httpx.get(base_url.rstrip("/") + "/", timeout=2.0).json()
+    except (httpx.HTTPError, ValueError):
+        return things
+    names = {str(url).rstrip("/").rsplit("/", 1)[-1] for url in listed} if isinstance(listed, list) else set()
+    return [t for t in things if t not in names]
+
+
+def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] | None, timeout: float,
+               alive: Callable[[], str | None] = lambda: None, progress: Callable[[str], None] = lambda _: None,
+               http: str | None = None) -> LabStatus | None:
+    """Poll until the lab is ready; returns its status, or raises Unavailable naming what is missing.
+
+    `open_client()` is a context manager giving a MeshClient (it raises Unavailable while no router
+    answers). With `things`, ready means they all answer their TD (and `http`, if given, lists them);
+    without, it means the lab's status key says so. `alive()` names a lab process that died (stop
+    waiting at once).
+    """
+    deadline = time.monotonic() + timeout
+    missing: list[str] = list(things or ["the lab's status"])
+    said = time.monotonic()
+    while True:
+        dead = alive()
+        if dead:
+            raise LabDied(dead)
+        try:
+            with open_client() as client:
+                while True:
+                    dead = alive()
+                    if dead:
+                        raise LabDied(dead)
+                    if things is None:
+                        status = _status(client, settings)
+                        if status is not None and status.ready:
+                            return status
+                        missing = ["the lab's status"] if status is None else status.things
+                    else:
+                        missing = missing_tds(client, things)
+                        if not missing and http is not None:
+                            missing = [f"{t} (over HTTP)" for t in missing_over_http(http, things)]
+                        if not missing:
+                            return None
+                    if time.monotonic() >= deadline:
+                        break
+                    if time.monotonic() - said >= 15:
+                        progress(f"still waiting for {', '.join(missing)}")
+                        said = time.monotonic()
+                    time.sleep(0.2)
+        except LabDied:
+            raise
+        except Unavailable:  # no router yet
+            if time.monotonic() >= deadline:
+                raise
+            time.sleep(0.3)
+            continue
+        raise Unavailable(f"not ready within {timeout:g} s; waiting for {', '.join(missing)}")
+
+
+def _status(client, settings: MeshSettings) -> LabStatus | None:
+    for reply in client.session.get(status_key(settings), timeout=1.0):
+        if reply.ok is None:
+            continue
+        try:
+            return msgspec.json.decode(reply.ok.payload.to_bytes(), type=LabStatus)
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            continue
+    return None

@@ -1,0 +1,161 @@
+"""Run a lab as separate processes (spawned, never forked) and stop every one of them cleanly.
+
+Each process runs `target(settings, stop, **kwargs)`; SIGINT/SIGTERM set `stop`, the target
+closes its sessions and returns. The supervisor forwards Ctrl-C/SIGTERM, waits, then escalates
+(terminate, kill) so that no process is left behind.
+"""
+from __future__ import annotations
+
+import importlib
+import logging
+import multiprocessing as mp
+import os
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgspec
+
+from twinmesh.fabric.settings import MeshSettings
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ProcessSpec:
+    """One process of a lab: a name and a `module:function` entry point with keyword arguments.
+
+    `role` is what `ps` shows after `twinmesh: ` (default: the name), e.g. `world iot-lab`."""
+
+    name: str
+    target: str
+    kwargs: dict[str, Any] = field(default_factory=dict)
+    role: str = ""
+
+
+class StopEvent(threading.Event):
+    """An Event whose untimed wait wakes up every 0.2 s.
+
+    Signals often land on one of Zenoh's native threads; Python runs its handler only when the
+    main thread next wakes, so a main thread blocked forever in `wait()` would never see Ctrl-C.
+    """
+
+    def wait(self, timeout: float | None = None) -> bool:
+        if timeout is not None:
+            return super().wait(timeout)
+        while not super().wait(0.2):
+            pass
+        return True
+
+
+def install_stop_handlers() -> StopEvent:
+    """A stop event set by SIGINT and SIGTERM (call from the main thread)."""
+    stop = StopEvent()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    return stop
+
+
+def resolve(target: str):
+    module, _, func = target.partition(":")
+    return getattr(importlib.import_module(module), func)
+
+
+def set_title(role: str) -> None:
+    """Name this process in `ps`/`top` as `twinmesh: <role>` (instead of `python -c from multiprocessing...`)."""
+    from setproctitle import setproctitle
+
+    setproctitle(f"twinmesh: {role}")
+
+
+def die_with_parent(parent: int) -> None:
+    """Ask Linux to send SIGTERM to this process when its parent dies, however it dies (`kill -9`
+    included): no orphan keeps the lab's ports after `up` is gone. Elsewhere a no-op."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # it died before we asked
+        os.kill(os.getpid(), signal.SIGTERM)
+    threading.Thread(target=_orphan_watchdog, args=(parent,), name="orphan-watchdog", daemon=True).start()
+
+
+ORPHAN_GRACE = 1.5  # s an orphaned process has to stop cleanly (sessions, a recording's footer) before it is ended
+
+
+def _orphan_watchdog(parent: int) -> None:
+    """The SIGTERM above asks for a clean stop; if the process is still there ORPHAN_GRACE seconds after
+    its parent died (a session close that hangs), it ends itself: no orphan holds a port for long."""
+    while os.getppid() == parent:
+        time.sleep(0.25)
+    time.sleep(ORPHAN_GRACE)
+    os._exit(1)
+
+
+def _child(spec: ProcessSpec, settings_json: bytes, log_level: int, parent: int) -> None:
+    die_with_parent(parent)
+    set_title(spec.role or spec.name)
+    logging.basicConfig(level=log_level, format=f"%(asctime)s {spec.name} %(levelname)s %(message)s")
+    stop = install_stop_handlers()
+    settings = msgspec.json.decode(settings_json, type=MeshSettings)
+    resolve(spec.target)(settings, stop, **spec.kwargs)
+
+
+class Supervisor:
+    """Starts specs in order, watches them, and stops them all on request or on a signal."""
+
+    def __init__(self, settings: MeshSettings, specs: list[ProcessSpec], grace: float = 5.0):
+        self.settings = settings
+        self.specs = specs
+        self.grace = grace
+        self.procs: dict[str, mp.Process] = {}
+        self._ctx = mp.get_context("spawn")
+        self.stop = StopEvent()
+
+    def start(self) -> None:
+        """Spawn every process; from here on SIGINT/SIGTERM set `self.stop` (call from the main thread)."""
+        self.stop = install_stop_handlers()
+        payload = msgspec.json.encode(self.settings)
+        level = logging.getLogger().getEffectiveLevel()
+        for spec in self.specs:
+            p = self._ctx.Process(target=_child, args=(spec, payload, level, os.getpid()), name=spec.name,
+                                  daemon=False)
+            p.start()
+            self.procs[spec.name] = p
+
+    def dead(self) -> str | None:
+        """A sentence naming a process that exited on its own, or None while all run."""
+        for name, p in self.procs.items():
+            if not p.is_alive():
+                return f"process {name} exited (code {p.exitcode})"
+        return None
+
+    def run_until_stopped(self) -> int:
+        """Block until a signal or a child exits on its own; then stop all. Returns an exit code."""
+        failed = ""
+        while not self.stop.wait(0.2):
+            dead = [n for n, p in self.procs.items() if not p.is_alive()]
+            if dead:
+                failed = dead[0]
+                log.error("process %s exited (code %s); stopping the lab", failed, self.procs[failed].exitcode)
+                break
+        self.shutdown()
+        return 1 if failed else 0
+
+    def shutdown(self) -> None:
+        for p in self.procs.values():
+            if p.is_alive():
+                p.terminate()  # SIGTERM: the child sets its stop event and closes its sessions
+        deadline = time.monotonic() + self.grace
+        for p in self.procs.values():
+            p.join(max(0.0, deadline - time.monotonic()))
+        for p in self.procs.values():
+            if p.is_alive():
+                log.warning("process %s did not stop in %.0f s; killing it", p.name, self.grace)
+                p.kill()
+                p.join()

@@ -1,0 +1,1 @@
+"""Every wire message that is not a TD: scene and pose descriptions, twin descriptions."""

@@ -1,0 +1,1 @@
+"""The pybullet world and the device models; `layouts` builds the platform and the lab."""

@@ -1,0 +1,1 @@
+"""Robot TD generation: workspace sampling, the generate pipeline, TD assembly."""

@@ -1,0 +1,1 @@
+"""Protocol-neutral WoT: the TD model, input validation, problems, JSON payload decoding."""

@@ -1,0 +1,173 @@
+"""The Thing Description model: the TD 1.1 subset twinmesh serves, as msgspec Structs.
+
+TDs travel as JSON; decoding into these Structs is what checks their shape, and the same model
+feeds input validation (`twinmesh.wot.validate`) and the HTTP adapter's form rewriting.
+"""
+from __future__ import annotations
+
+from typing import Any, Literal
+
+import msgspec
+
+TD_CONTEXT: list[Any] = [
+    "https://www.w3.org/2019/wot/td/v1",
+    "https://www.w3.org/2022/wot/td/v1.1",
+    {"@language": "en"},
+]
+NOSEC: dict[str, dict[str, Any]] = {"nosec_sc": {"scheme": "nosec"}}
+JSON = "application/json"
+
+AffordanceKind = Literal["properties", "actions", "events"]
+
+
+class DataSchema(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type"}):
+    type: str | None = None
+    title: str | None = None
+    description: str | None = None
+    at_type: str | list[str] | None = None
+    unit: str | None = None
+    const: Any = msgspec.UNSET
+    default: Any = msgspec.UNSET
+    enum: list[Any] | None = None
+    format: str | None = None
+    minimum: float | None = None
+    maximum: float | None = None
+    exclusiveMinimum: float | None = None
+    exclusiveMaximum: float | None = None
+    minLength: int | None = None
+    maxLength: int | None = None
+    pattern: str | None = None
+    minItems: int | None = None
+    maxItems: int | None = None
+    items: "DataSchema | None" = None
+    properties: "dict[str, DataSchema] | None" = None
+    required: list[str] | None = None
+    readOnly: bool | None = None
+    writeOnly: bool | None = None
+    contentMediaType: str | None = None
+
+
+class Form(msgspec.Struct, omit_defaults=True, rename={"method": "htv:methodName"}):
+    href: str
+    op: str | list[str] | None = None
+    contentType: str | None = None
+    subprotocol: str | None = None
+    method: str | None = None
+    response: dict[str, Any] | None = None
+    additionalResponses: list[dict[str, Any]] | None = None
+    security: str | list[str] | None = None
+
+    def ops(self) -> list[str]:
+        return [self.op] if isinstance(self.op, str) else list(self.op or [])
+
+
+class PropertyAffordance(DataSchema, omit_defaults=True):
+    observable: bool | None = None
+    forms: list[Form] = []
+
+
+class ActionAffordance(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type"}):
+    title: str | None = None
+    description: str | None = None
+    at_type: str | list[str] | None = None
+    input: DataSchema | None = None
+    output: DataSchema | None = None
+    safe: bool | None = None
+    idempotent: bool | None = None
+    synchronous: bool | None = None
+    forms: list[Form] = []
+
+
+class EventAffordance(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type"}):
+    title: str | None = None
+    description: str | None = None
+    at_type: str | list[str] | None = None
+    data: DataSchema | None = None
+    forms: list[Form] = []
+
+
+class Link(msgspec.Struct, omit_defaults=True):
+    href: str
+    rel: str | None = None
+    type: str | None = None
+    anchor: str | None = None
+
+
+class ThingDescription(msgspec.Struct, omit_defaults=True,
+                       rename={"context": "@context", "at_type": "@type"}):
+    title: str
+    context: str | list[Any] = msgspec.field(default_factory=lambda: list(TD_CONTEXT))
+    at_type: str | list[str] | None = None
+    id: str | None = None
+    description: str | None = None
+    version: dict[str, Any] | None = None
+    base: str | None = None
+    security: str | list[str] = msgspec.field(default_factory=lambda: ["nosec_sc"])
+    securityDefinitions: dict[str, dict[str, Any]] = msgspec.field(default_factory=lambda: dict(NOSEC))
+    properties: dict[str, PropertyAffordance] = {}
+    actions: dict[str, ActionAffordance] = {}
+    events: dict[str, EventAffordance] = {}
+    links: list[Link] = []
+    forms: list[Form] = []
+
+    def affordance(self, kind: AffordanceKind, name: str):
+        """The named affordance of a kind, or None."""
+        return getattr(self, kind).get(name)
+
+    def no_such(self, thing: str, kind: AffordanceKind, name: str) -> str:
+        """The sentence for a missing affordance: what was asked, and what the Thing has instead."""
+        singular = {"properties": "property", "actions": "action", "events": "event"}[kind]
+        have = sorted(getattr(self, kind))
+        return (f"{thing} has no {singular} {name!r}; its {kind}: {', '.join(have)}" if have
+                else f"{thing} has no {singular} {name!r}; it has no {kind}")
+
+    def to_json(self) -> bytes:
+        return msgspec.json.encode(self)
+
+    def to_dict(self) -> dict[str, Any]:
+        return msgspec.to_builtins(self)
+
+
+def decode_td(data: bytes | str | dict) -> ThingDescription:
+    """Parse a TD from JSON text or a dict; raises msgspec.ValidationError on a bad shape."""
+    if isinstance(data, dict):
+        return msgspec.convert(data, ThingDescription)
+    return msgspec.json.decode(data, type=ThingDescription)
+
+
+def thing_id(thing: str) -> str:
+    """A stable absolute URI for a Thing of the mesh (node-wot checks `id` is a URI)."""
+    return f"urn:twinmesh:thing:{thing}"
+
+
+PROPERTY_OPS = {"read": "readproperty", "write": "writeproperty", "observe": "observeproperty"}
+
+
+def property_ops(p: PropertyAffordance) -> list[str]:
+    """The operations a property allows, from readOnly/writeOnly/observable."""
+    ops = []
+    if not p.writeOnly:
+        ops.append("readproperty")
+    if not p.readOnly:
+        ops.append("writeproperty")
+    return ops
+
+
+def zenoh_forms(td: ThingDescription, prefix: str, thing: str) -> ThingDescription:
+    """The TD as served on Zenoh: every form's href is the affordance's key expression."""
+    def href(kind: str, name: str) -> str:
+        return f"zenoh:{prefix}/{thing}/{kind}/{name}"
+
+    props = {
+        n: msgspec.structs.replace(p, forms=[Form(href=href("properties", n), op=property_ops(p), contentType=JSON)]
+                                   + ([Form(href=href("properties", n), op=["observeproperty", "unobserveproperty"],
+                                            contentType=JSON)] if p.observable else []))
+        for n, p in td.properties.items()
+    }
+    actions = {n: msgspec.structs.replace(a, forms=[Form(href=href("actions", n), op="invokeaction", contentType=JSON)])
+               for n, a in td.actions.items()}
+    events = {n: msgspec.structs.replace(e, forms=[Form(href=href("events", n),
+                                                         op=["subscribeevent", "unsubscribeevent"], contentType=JSON)])
+              for n, e in td.events.items()}
+    return msgspec.structs.replace(td, title=td.title or thing, id=td.id or thing_id(thing),
+                                   properties=props, actions=actions, events=events, forms=[])
