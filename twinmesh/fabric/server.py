@@ -19,7 +19,7 @@ import msgspec
 from twinmesh.fabric.keys import NAME, Keys, check_name, check_slug
 from twinmesh.wot.payload import decode_json
 from twinmesh.wot.problem import BadInput, NotAllowed, NotFound, Problem
-from twinmesh.wot.td import ThingDescription, zenoh_forms
+from twinmesh.wot.td import ThingDescription, decode_td, keep_terms, zenoh_forms
 from twinmesh.wot.validate import validate
 
 log = logging.getLogger(__name__)
@@ -46,12 +46,15 @@ class ActionCall(msgspec.Struct, omit_defaults=True):
 class ExposedThing:
     """One Thing on the mesh. Register handlers, then `expose()`; `destroy()` (or `with`) undeclares."""
 
-    def __init__(self, session, td: ThingDescription, name: str, keys: Keys | None = None,
+    def __init__(self, session, td: ThingDescription | dict[str, Any], name: str, keys: Keys | None = None,
                  workers: int = 8):
+        """`td` as a model, or as the JSON document itself: then every term of it is served, also those
+        the model does not hold (an extension vocabulary's, say)."""
         self.session = session
         self.name = check_slug(name)
         self.keys = keys or Keys()
-        self.td = td
+        self._source = td if isinstance(td, dict) else None
+        self.td = decode_td(td) if isinstance(td, dict) else td
         self._reads: dict[str, Read] = {}
         self._writes: dict[str, Write] = {}
         self._actions: dict[str, Act] = {}
@@ -135,9 +138,13 @@ class ExposedThing:
         """Replace the TD (e.g. a regenerated robot TD) and tell observers of `<thing>/td`."""
         td = self._truthful(td)
         self.td = td
-        self._td_json = zenoh_forms(td, self.keys.prefix, self.name).to_json()
+        self._td_json = self._served_td()
         if self._exposed:
             self.session.put(self.keys.td(self.name), self._td_json, encoding=JSON_ENCODING)
+
+    def _served_td(self) -> bytes:
+        served = zenoh_forms(self.td, self.keys.prefix, self.name)
+        return msgspec.json.encode(keep_terms(self._source, served.to_dict())) if self._source else served.to_json()
 
     def _publish(self, key: str, value: Any) -> None:
         if not self._exposed:
@@ -154,7 +161,7 @@ class ExposedThing:
         if missing:
             raise ValueError(f"{self.name}: no handler for {', '.join(missing)}")
         self.td = self._truthful(self.td)
-        self._td_json = zenoh_forms(self.td, self.keys.prefix, self.name).to_json()
+        self._td_json = self._served_td()
         k, s = self.keys, self.session
         def serve(key: str, answer: Callable[..., bytes | None], *args: Any, acts: str = "") -> None:
             self._declared.append(s.declare_queryable(key, self._dispatch(key, acts, answer, *args)))

@@ -14,8 +14,8 @@ from starlette.middleware.cors import CORSMiddleware
 
 from twinmesh.http import actions, events, properties, things
 from twinmesh.http.auth import Auth, AuthMiddleware
-from twinmesh.http.problems import exception_handlers
 from twinmesh.http.gateway import Registry
+from twinmesh.http.problems import exception_handlers
 
 
 def create_app(registry: Registry, auth: Auth | None = None) -> Starlette:

@@ -29,12 +29,12 @@ import msgspec
 
 from twinmesh.fabric.client import MeshClient, Reply
 from twinmesh.fabric.directory import Directory
+from twinmesh.fabric.settings import MeshSettings
 from twinmesh.http.observers import Change, Feed, Observers
 from twinmesh.http.problems import unavailable
 from twinmesh.http.tdrewrite import with_types
 from twinmesh.wot.payload import JSON_ERRORS, decode_json
 from twinmesh.wot.problem import BadGateway, BadInput, NotFound, Problem, Unavailable
-from twinmesh.fabric.settings import MeshSettings
 from twinmesh.wot.td import ThingDescription, decode_td
 from twinmesh.wot.validate import validate
 
@@ -53,6 +53,7 @@ class ThingEntry:
     alive: bool = True
     td: ThingDescription | None = None
     td_error: str | None = None
+    source: dict[str, Any] | None = None  # the TD as the Thing serves it: terms the model does not hold
     generation: int = 0  # bumped on each join: a stale TD fetch must not win
     fetch: asyncio.Task | None = None
     values: dict[str, _Cached] = field(default_factory=dict)
@@ -236,6 +237,7 @@ class Registry:
     def _set_td(self, entry: ThingEntry, payload: bytes) -> None:
         try:
             entry.td, entry.td_error = with_types(decode_td(payload)), None
+            entry.source = msgspec.json.decode(payload)
         except (msgspec.ValidationError, *JSON_ERRORS) as e:
             entry.td_error = f"{entry.name} serves an invalid TD: {e}"
             log.warning(entry.td_error)
@@ -283,14 +285,15 @@ class Registry:
             raise unavailable(f"{thing}'s TD could not be fetched yet", retry_after=1)
         return entry.td
 
-    def render(self, thing: str, base: str, make: Callable[[ThingDescription], bytes]) -> bytes:
+    def render(self, thing: str, base: str,
+               make: Callable[[ThingDescription, dict[str, Any] | None], bytes]) -> bytes:
         """The HTTP TD for a base URL, made once per TD version (call after `td()`)."""
         entry = self._entry(thing)
         out = entry.rendered.get(base)
         if out is None:
             if len(entry.rendered) >= 8:  # bases come from Host headers: bound them
                 entry.rendered.clear()
-            out = entry.rendered[base] = make(entry.td)  # type: ignore[arg-type]
+            out = entry.rendered[base] = make(entry.td, entry.source)  # type: ignore[arg-type]
         return out
 
     async def read(self, thing: str, prop: str) -> bytes:

@@ -17,11 +17,11 @@ from typing import Iterator
 
 import uvicorn
 
+from twinmesh.fabric.session import open_session
+from twinmesh.fabric.settings import MeshSettings
 from twinmesh.http.app import create_app
 from twinmesh.http.auth import parse_auth
 from twinmesh.http.gateway import Registry
-from twinmesh.fabric.session import open_session
-from twinmesh.fabric.settings import MeshSettings
 
 log = logging.getLogger(__name__)
 GRACE = 1.0  # seconds in-flight requests get once stop is set

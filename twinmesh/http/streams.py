@@ -26,8 +26,8 @@ from starlette.requests import Request
 from starlette.responses import Response
 from starlette.types import Receive, Scope, Send
 
-from twinmesh.http.observers import Change, Feed
 from twinmesh.http.gateway import Registry
+from twinmesh.http.observers import Change, Feed
 from twinmesh.wot.problem import Problem
 from twinmesh.wot.td import JSON
 

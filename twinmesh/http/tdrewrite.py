@@ -30,6 +30,7 @@ from twinmesh.wot.td import (
     Link,
     PropertyAffordance,
     ThingDescription,
+    keep_terms,
     property_ops,
     thing_id,
 )
@@ -43,8 +44,10 @@ Security = tuple[dict[str, dict[str, Any]], list[str]]
 NOSEC: Security = ({"nosec_sc": {"scheme": "nosec"}}, ["nosec_sc"])
 
 
-def http_td(td: ThingDescription, thing: str, base: str, security: Security = NOSEC) -> dict[str, Any]:
-    """The TD of `thing` as this adapter serves it at `{base}/{thing}` (a JSON-ready dict)."""
+def http_td(td: ThingDescription, thing: str, base: str, security: Security = NOSEC,
+            source: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The TD of `thing` as this adapter serves it at `{base}/{thing}` (a JSON-ready dict); the terms
+    of `source` (the TD as the Thing serves it) that the model does not hold are kept."""
     td = with_types(td)
     url = f"{base}/{thing}"
     props = {n: _property(p, f"{url}/properties/{n}") for n, p in td.properties.items()}
@@ -63,7 +66,7 @@ def http_td(td: ThingDescription, thing: str, base: str, security: Security = NO
         td, title=thing, id=served_id(td, thing),
         context=_context(td.context), base=None, properties=props, actions=actions, events=events,
         forms=forms, links=links, securityDefinitions=dict(security[0]), security=list(security[1]))
-    return msgspec.to_builtins(out)
+    return keep_terms(source, msgspec.to_builtins(out)) if source else msgspec.to_builtins(out)
 
 
 def served_id(td: ThingDescription, thing: str) -> str:
@@ -109,17 +112,22 @@ def with_types(td: ThingDescription) -> ThingDescription:
 def typed(schema: DataSchema) -> Any:
     """`type` on every data schema (SPEC §5): inferred where the schema makes it unambiguous."""
     t = schema.type
+    branches = [typed(b) for b in schema.oneOf] if schema.oneOf else schema.oneOf
     if t is None:
-        if schema.properties is not None or schema.required:
+        if branches and len({b.type for b in branches if isinstance(b.type, str)} | {None}) == 2 \
+                and all(b.type for b in branches):
+            t = branches[0].type  # every branch of the oneOf has the same type
+        elif schema.properties is not None or schema.required:
             t = "object"
         elif schema.items is not None or schema.minItems is not None or schema.maxItems is not None:
             t = "array"
         else:
             t = _type_of_values([*([schema.const] if schema.const is not msgspec.UNSET else []),
                                  *(schema.enum or [])])
-    items = typed(schema.items) if schema.items is not None else None
+    items = ([typed(i) for i in schema.items] if isinstance(schema.items, list)
+             else typed(schema.items) if schema.items is not None else None)
     properties = {k: typed(v) for k, v in schema.properties.items()} if schema.properties else schema.properties
-    return msgspec.structs.replace(schema, type=t, items=items, properties=properties)
+    return msgspec.structs.replace(schema, type=t, items=items, properties=properties, oneOf=branches)
 
 
 def _type_of_values(values: list[Any]) -> str | None:

@@ -20,9 +20,9 @@ from starlette.requests import Request
 from starlette.responses import Response
 from starlette.routing import Route
 
+from twinmesh.fabric.keys import NAME
 from twinmesh.http.context import base_url, registry, security, thing_name
 from twinmesh.http.tdrewrite import LD_JSON, TD_JSON, directory_td, http_td, served_id
-from twinmesh.fabric.keys import NAME
 from twinmesh.wot.problem import BadInput, NotFound, Problem
 from twinmesh.wot.td import JSON
 
@@ -31,7 +31,7 @@ async def _td_bytes(request: Request, thing: str) -> bytes:
     reg = registry(request)
     await reg.td(thing)
     base, sec = base_url(request), security(request)
-    return reg.render(thing, base, lambda td: msgspec.json.encode(http_td(td, thing, base, sec)))
+    return reg.render(thing, base, lambda td, source: msgspec.json.encode(http_td(td, thing, base, sec, source)))
 
 
 async def thing_description(request: Request) -> Response:

@@ -1,7 +1,10 @@
-"""The Thing Description model: the TD 1.1 subset twinmesh serves, as msgspec Structs.
+"""The Thing Description model: TD 1.1 as msgspec Structs.
 
 TDs travel as JSON; decoding into these Structs is what checks their shape, and the same model
-feeds input validation (`twinmesh.wot.validate`) and the HTTP adapter's form rewriting.
+feeds input validation (`twinmesh.wot.validate`) and the HTTP adapter's form rewriting. Every term
+of the TD 1.1 information model is a field, with the JSON Schema keywords a data schema may carry;
+terms beyond it (extension vocabularies, other JSON Schema keywords) are carried by `keep_terms`
+from the document a Thing serves into what the adapter serves.
 """
 from __future__ import annotations
 
@@ -20,42 +23,56 @@ JSON = "application/json"
 AffordanceKind = Literal["properties", "actions", "events"]
 
 
-class DataSchema(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type"}):
-    type: str | None = None
+class DataSchema(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type", "schema_ref": "$ref"}):
+    type: str | list[str] | None = None
     title: str | None = None
+    titles: dict[str, str] | None = None
     description: str | None = None
+    descriptions: dict[str, str] | None = None
     at_type: str | list[str] | None = None
     unit: str | None = None
     const: Any = msgspec.UNSET
     default: Any = msgspec.UNSET
     enum: list[Any] | None = None
+    oneOf: "list[DataSchema] | None" = None
+    anyOf: "list[DataSchema] | None" = None
+    allOf: "list[DataSchema] | None" = None
     format: str | None = None
     minimum: float | None = None
     maximum: float | None = None
     exclusiveMinimum: float | None = None
     exclusiveMaximum: float | None = None
+    multipleOf: float | None = None
     minLength: int | None = None
     maxLength: int | None = None
     pattern: str | None = None
+    contentEncoding: str | None = None
+    contentMediaType: str | None = None
     minItems: int | None = None
     maxItems: int | None = None
-    items: "DataSchema | None" = None
+    uniqueItems: bool | None = None
+    items: "DataSchema | list[DataSchema] | None" = None
     properties: "dict[str, DataSchema] | None" = None
     required: list[str] | None = None
+    additionalProperties: "bool | DataSchema | None" = None
+    minProperties: int | None = None
+    maxProperties: int | None = None
     readOnly: bool | None = None
     writeOnly: bool | None = None
-    contentMediaType: str | None = None
+    schema_ref: str | None = None
 
 
 class Form(msgspec.Struct, omit_defaults=True, rename={"method": "htv:methodName"}):
     href: str
     op: str | list[str] | None = None
     contentType: str | None = None
+    contentCoding: str | None = None
     subprotocol: str | None = None
     method: str | None = None
     response: dict[str, Any] | None = None
     additionalResponses: list[dict[str, Any]] | None = None
     security: str | list[str] | None = None
+    scopes: str | list[str] | None = None
 
     def ops(self) -> list[str]:
         return [self.op] if isinstance(self.op, str) else list(self.op or [])
@@ -63,13 +80,17 @@ class Form(msgspec.Struct, omit_defaults=True, rename={"method": "htv:methodName
 
 class PropertyAffordance(DataSchema, omit_defaults=True):
     observable: bool | None = None
+    uriVariables: dict[str, DataSchema] | None = None
     forms: list[Form] = []
 
 
 class ActionAffordance(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type"}):
     title: str | None = None
+    titles: dict[str, str] | None = None
     description: str | None = None
+    descriptions: dict[str, str] | None = None
     at_type: str | list[str] | None = None
+    uriVariables: dict[str, DataSchema] | None = None
     input: DataSchema | None = None
     output: DataSchema | None = None
     safe: bool | None = None
@@ -80,9 +101,15 @@ class ActionAffordance(msgspec.Struct, omit_defaults=True, rename={"at_type": "@
 
 class EventAffordance(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type"}):
     title: str | None = None
+    titles: dict[str, str] | None = None
     description: str | None = None
+    descriptions: dict[str, str] | None = None
     at_type: str | list[str] | None = None
+    uriVariables: dict[str, DataSchema] | None = None
+    subscription: DataSchema | None = None
     data: DataSchema | None = None
+    dataResponse: DataSchema | None = None
+    cancellation: DataSchema | None = None
     forms: list[Form] = []
 
 
@@ -91,6 +118,8 @@ class Link(msgspec.Struct, omit_defaults=True):
     rel: str | None = None
     type: str | None = None
     anchor: str | None = None
+    sizes: str | None = None
+    hreflang: str | list[str] | None = None
 
 
 class ThingDescription(msgspec.Struct, omit_defaults=True,
@@ -99,9 +128,17 @@ class ThingDescription(msgspec.Struct, omit_defaults=True,
     context: str | list[Any] = msgspec.field(default_factory=lambda: list(TD_CONTEXT))
     at_type: str | list[str] | None = None
     id: str | None = None
+    titles: dict[str, str] | None = None
     description: str | None = None
+    descriptions: dict[str, str] | None = None
     version: dict[str, Any] | None = None
+    created: str | None = None
+    modified: str | None = None
+    support: str | None = None
     base: str | None = None
+    profile: str | list[str] | None = None
+    schemaDefinitions: dict[str, DataSchema] | None = None
+    uriVariables: dict[str, DataSchema] | None = None
     security: str | list[str] = msgspec.field(default_factory=lambda: ["nosec_sc"])
     securityDefinitions: dict[str, dict[str, Any]] = msgspec.field(default_factory=lambda: dict(NOSEC))
     properties: dict[str, PropertyAffordance] = {}
@@ -171,3 +208,21 @@ def zenoh_forms(td: ThingDescription, prefix: str, thing: str) -> ThingDescripti
               for n, e in td.events.items()}
     return msgspec.structs.replace(td, title=td.title or thing, id=td.id or thing_id(thing),
                                    properties=props, actions=actions, events=events, forms=[])
+
+
+REWRITTEN_TERMS = frozenset({"forms", "links", "base", "security", "securityDefinitions", "@context", "id", "title"})
+
+
+def keep_terms(source: Any, served: Any) -> Any:
+    """`served` with every term of `source` that it lacks put back, at every depth: what a Thing
+    said beyond this model (an extension vocabulary's terms, JSON Schema keywords TD 1.1 does not
+    name) reaches its readers unchanged. Terms the server rewrites (forms, links, security...)
+    and every term `served` has are left as served."""
+    if not (isinstance(source, dict) and isinstance(served, dict)):
+        return served
+    out = dict(served)
+    for key, value in source.items():
+        if key in REWRITTEN_TERMS:
+            continue
+        out[key] = keep_terms(value, out[key]) if key in out else value
+    return out

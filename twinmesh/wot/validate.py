@@ -1,33 +1,65 @@
 """Input validation against an affordance's data schema, before anything reaches a device.
 
-Covers the JSON Schema keywords TDs use (type, const, enum, minimum/maximum, exclusive bounds,
-lengths, pattern, items, properties/required). A violation raises `BadInput` naming the path, e.g.
-`input.x: 250 is above the maximum 200`.
+A real JSON Schema implementation (jsonschema, draft 7, the dialect TD data schemas follow) with
+its format checks, compiled once per schema; what changes is only how a violation reads: one
+`BadInput` naming the path and the rule, e.g. `input.x: 250 is above the maximum 200`. Numbers
+are JSON numbers a device can compute with: booleans are not numbers, and an integer beyond the
+range of a double (valid JSON, 400 digits) is refused.
 """
 from __future__ import annotations
 
-import re
 import sys
+from functools import lru_cache
 from typing import Any
+
+import jsonschema
+import msgspec
+from jsonschema import Draft7Validator
+from jsonschema.exceptions import ValidationError, relevance
 
 from twinmesh.wot.problem import BadInput
 from twinmesh.wot.td import DataSchema
 
+Schema = DataSchema | dict[str, Any] | None
+
+
 def _double(v: Any) -> bool:
-    """A JSON number a device can take: an int or float within the range of a double (a 400-digit
-    integer is valid JSON, but no device computes with it)."""
     return isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= sys.float_info.max
 
 
-_TYPES = {
-    "boolean": lambda v: isinstance(v, bool),
-    "integer": lambda v: _double(v) and (isinstance(v, int) or float(v).is_integer()),
-    "number": _double,
-    "string": lambda v: isinstance(v, str),
-    "array": lambda v: isinstance(v, list),
-    "object": lambda v: isinstance(v, dict),
-    "null": lambda v: v is None,
-}
+_TYPES = Draft7Validator.TYPE_CHECKER.redefine_many({
+    "number": lambda _, v: _double(v),
+    "integer": lambda _, v: _double(v) and (isinstance(v, int) or float(v).is_integer()),
+})
+_Validator = jsonschema.validators.extend(Draft7Validator, type_checker=_TYPES)
+_FORMATS = Draft7Validator.FORMAT_CHECKER
+
+
+def validate(value: Any, schema: Schema, path: str = "input") -> None:
+    """Raise BadInput if `value` does not satisfy `schema` (None accepts anything)."""
+    if schema is None:
+        return
+    raw = msgspec.json.encode(schema)
+    validator = _compiled(raw)
+    errors = list(validator.iter_errors(value))
+    if errors:  # the most relevant one, not a branch inside oneOf/anyOf: that would mislead
+        raise BadInput(_sentence(max(errors, key=relevance), path))
+
+
+@lru_cache(maxsize=4096)
+def _compiled(schema_json: bytes) -> Draft7Validator:
+    schema = msgspec.json.decode(schema_json)
+    try:
+        _Validator.check_schema(schema)
+    except jsonschema.SchemaError as e:
+        raise BadInput(f"the affordance's schema is not valid JSON Schema: {e.message}") from None
+    return _Validator(schema, format_checker=_FORMATS)
+
+
+def _where(error: ValidationError, path: str) -> str:
+    for part in error.absolute_path:
+        path += f"[{part}]" if isinstance(part, int) else f".{part}"
+    return path
 
 
 def _show(v: Any) -> str:
@@ -35,63 +67,59 @@ def _show(v: Any) -> str:
     return s if len(s) < 60 else s[:57] + "..."
 
 
-def validate(value: Any, schema: DataSchema | None, path: str = "input") -> None:
-    """Raise BadInput if `value` does not satisfy `schema` (None accepts anything)."""
-    if schema is None:
-        return
-    t = schema.type
-    if t is not None:
-        check = _TYPES.get(t)
-        if check is None:
-            raise BadInput(f"{path}: the schema has an unknown type {t!r}")
-        if not check(value):
-            raise BadInput(f"{path}: expected {t}, got {_show(value)}")
-    if schema.const is not _unset() and value != schema.const:
-        raise BadInput(f"{path}: must be {schema.const!r}")
-    if schema.enum is not None and value not in schema.enum:
-        raise BadInput(f"{path}: {_show(value)} is not one of {schema.enum}")
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        _check_bounds(value, schema, path)
-    if isinstance(value, str):
-        if schema.minLength is not None and len(value) < schema.minLength:
-            raise BadInput(f"{path}: shorter than {schema.minLength} characters")
-        if schema.maxLength is not None and len(value) > schema.maxLength:
-            raise BadInput(f"{path}: longer than {schema.maxLength} characters")
-        if schema.pattern is not None and not re.search(schema.pattern, value):
-            raise BadInput(f"{path}: {_show(value)} does not match the pattern {schema.pattern}")
-    if isinstance(value, list):
-        if schema.minItems is not None and len(value) < schema.minItems:
-            raise BadInput(f"{path}: needs at least {schema.minItems} items, got {len(value)}")
-        if schema.maxItems is not None and len(value) > schema.maxItems:
-            raise BadInput(f"{path}: allows at most {schema.maxItems} items, got {len(value)}")
-        if schema.items is not None:
-            for i, item in enumerate(value):
-                validate(item, schema.items, f"{path}[{i}]")
-    if isinstance(value, dict):
-        for name in schema.required or ():
-            if name not in value:
-                raise BadInput(f"{path}: missing required field {name!r}")
-        for name, sub in (schema.properties or {}).items():
-            if name in value:
-                validate(value[name], sub, f"{path}.{name}")
+def _num(x: Any) -> str:
+    return str(int(x)) if isinstance(x, (int, float)) and float(x).is_integer() else str(x)
 
 
-def _check_bounds(value: float, schema: DataSchema, path: str) -> None:
-    if schema.minimum is not None and value < schema.minimum:
-        raise BadInput(f"{path}: {value} is below the minimum {_num(schema.minimum)}")
-    if schema.maximum is not None and value > schema.maximum:
-        raise BadInput(f"{path}: {value} is above the maximum {_num(schema.maximum)}")
-    if schema.exclusiveMinimum is not None and value <= schema.exclusiveMinimum:
-        raise BadInput(f"{path}: {value} must be above {_num(schema.exclusiveMinimum)}")
-    if schema.exclusiveMaximum is not None and value >= schema.exclusiveMaximum:
-        raise BadInput(f"{path}: {value} must be below {_num(schema.exclusiveMaximum)}")
-
-
-def _num(x: float) -> str:
-    return str(int(x)) if float(x).is_integer() else str(x)
-
-
-def _unset():
-    import msgspec
-
-    return msgspec.UNSET
+def _sentence(e: ValidationError, path: str) -> str:
+    """The violation as a person reads it; the keyword decides the words."""
+    where, v, rule = _where(e, path), e.instance, e.validator_value
+    match e.validator:
+        case "type":
+            types = rule if isinstance(rule, str) else " or ".join(rule)
+            return f"{where}: expected {types}, got {_show(v)}"
+        case "const":
+            return f"{where}: must be {rule!r}"
+        case "enum":
+            return f"{where}: {_show(v)} is not one of {rule}"
+        case "minimum":
+            return f"{where}: {v} is below the minimum {_num(rule)}"
+        case "maximum":
+            return f"{where}: {v} is above the maximum {_num(rule)}"
+        case "exclusiveMinimum":
+            return f"{where}: {v} must be above {_num(rule)}"
+        case "exclusiveMaximum":
+            return f"{where}: {v} must be below {_num(rule)}"
+        case "multipleOf":
+            return f"{where}: {v} is not a multiple of {_num(rule)}"
+        case "minLength":
+            return f"{where}: shorter than {rule} characters"
+        case "maxLength":
+            return f"{where}: longer than {rule} characters"
+        case "pattern":
+            return f"{where}: {_show(v)} does not match the pattern {rule}"
+        case "format":
+            return f"{where}: {_show(v)} is not a valid {rule}"
+        case "minItems":
+            return f"{where}: needs at least {rule} items, got {len(v)}"
+        case "maxItems":
+            return f"{where}: allows at most {rule} items, got {len(v)}"
+        case "uniqueItems":
+            return f"{where}: items must be unique"
+        case "required":
+            missing = next((n for n in rule if n not in v), rule[0])
+            return f"{where}: missing required field {missing!r}"
+        case "additionalProperties":
+            extra = sorted(k for k in v if k not in (e.schema.get("properties") or {}))
+            return f"{where}: unexpected field{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}"
+        case "minProperties" | "maxProperties":
+            return f"{where}: {e.message}"
+        case "oneOf":
+            matching = "more than one" if not e.context else "none"
+            return f"{where}: {_show(v)} matches {matching} of the allowed schemas (oneOf)"
+        case "anyOf":
+            return f"{where}: {_show(v)} matches none of the allowed schemas (anyOf)"
+        case "not":
+            return f"{where}: {_show(v)} matches a schema it must not match"
+        case _:
+            return f"{where}: {e.message}"
