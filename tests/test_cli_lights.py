@@ -5,7 +5,6 @@ import subprocess
 import time
 
 import pytest
-
 from labs import REPO, start_lab, twinmesh_cmd
 
 
@@ -40,7 +39,7 @@ def test_set_color_returns_and_stores_the_colour(lab):
 def test_invalid_write_is_refused_and_state_kept(lab, value, message):
     before = lab.cli("read", "light-left", "lightState").stdout
     r = lab.cli("write", "light-left", "lightState", value)
-    assert r.returncode != 0 and message in r.stderr
+    assert r.returncode == 1 and message in r.stderr
     assert "Traceback" not in r.stderr
     assert lab.cli("read", "light-left", "lightState").stdout == before
 
@@ -48,7 +47,7 @@ def test_invalid_write_is_refused_and_state_kept(lab, value, message):
 def test_out_of_range_colour_is_refused(lab):
     before = lab.cli("read", "light-left", "lightColor").stdout
     r = lab.cli("invoke", "light-left", "setColor", '{"r": 2, "g": 0, "b": 0}')
-    assert r.returncode != 0 and "input.r: 2 is above the maximum 1" in r.stderr
+    assert r.returncode == 1 and "input.r: 2 is above the maximum 1" in r.stderr
     assert lab.cli("read", "light-left", "lightColor").stdout == before
 
 
@@ -59,7 +58,7 @@ def test_malformed_json_names_the_problem(lab):
 
 def test_unknown_thing_is_reported_not_on_the_mesh(lab):
     r = lab.cli("read", "no-such-thing", "x")
-    assert r.returncode != 0 and "not on the mesh" in r.stderr
+    assert r.returncode == 1 and "not on the mesh" in r.stderr
 
 
 def test_observe_prints_each_change(lab):
@@ -104,4 +103,39 @@ def test_no_lab_is_a_clear_message_not_a_traceback():
 
     r = subprocess.run(twinmesh_cmd(f"tcp/127.0.0.1:{free_port()}", "read", "light-left", "lightState"),
                        capture_output=True, text=True, cwd=REPO, timeout=60)
-    assert r.returncode == 1 and "no lab reachable" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 3 and "no lab reachable" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("words, expected", [
+    (["read", "light-l"], {"light-left"}),
+    (["read", "light-left", ""], {"lightState", "lightColor"}),
+    (["invoke", "light-left", "s"], {"switchOn", "switchOff", "setColor"}),
+    (["subscribe", "light-left", ""], {"stateChanged"}),
+])
+def test_tab_completes_thing_and_affordance_names_from_the_lab(lab, words, expected):
+    """bash: eval "$(_TWINMESH_COMPLETE=bash_source twinmesh)"; the names come from the running lab."""
+    import os
+    import sys
+    from pathlib import Path
+
+    line = ["twinmesh", "--connect", lab.endpoint, *words]
+    env = {**os.environ, "_TWINMESH_COMPLETE": "bash_complete", "COMP_WORDS": " ".join(line),
+           "COMP_CWORD": str(len(line) - 1)}
+    r = subprocess.run([str(Path(sys.executable).with_name("twinmesh"))], env=env, capture_output=True, text=True,
+                       timeout=60)
+    offered = {item.split(",", 1)[1] for item in r.stdout.split()}
+    assert offered == expected, (r.stdout, r.stderr)
+
+
+def test_tab_completion_without_a_lab_offers_nothing_quickly():
+    import os
+    import sys
+    from pathlib import Path
+
+    from labs import free_port
+
+    line = ["twinmesh", "--connect", f"tcp/127.0.0.1:{free_port()}", "read", ""]
+    env = {**os.environ, "_TWINMESH_COMPLETE": "bash_complete", "COMP_WORDS": " ".join(line), "COMP_CWORD": "4"}
+    r = subprocess.run([str(Path(sys.executable).with_name("twinmesh"))], env=env, capture_output=True, text=True,
+                       timeout=30)
+    assert r.returncode == 0 and r.stdout.strip() == "" and "Traceback" not in r.stderr

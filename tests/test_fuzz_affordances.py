@@ -17,7 +17,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis_jsonschema import from_schema
-
 from labs import start_lab
 
 EXAMPLES = int(os.environ.get("TWINMESH_FUZZ_EXAMPLES", "4"))
@@ -162,9 +161,9 @@ def test_every_affordance_survives_valid_and_almost_valid_inputs_over_http(lab, 
 @pytest.mark.parametrize("thing", lab_things())
 def test_every_affordance_survives_the_same_inputs_over_zenoh(lab, tds, thing):
     from twinmesh.fabric.client import MeshClient
-    from twinmesh.wot.problem import Problem
     from twinmesh.fabric.session import open_session
     from twinmesh.fabric.settings import MeshSettings
+    from twinmesh.wot.problem import Problem
 
     settings_ = MeshSettings(mode="client", connect=(lab.endpoint,), action_timeout=120)
     td = tds[thing]

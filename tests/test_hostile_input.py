@@ -11,7 +11,6 @@ import httpx
 import msgspec
 import psutil
 import pytest
-
 from labs import REPO, free_port, spawn_up, start_lab, twinmesh_cmd, wait_ready
 from test_recorder import RERUN, scalars, wait_for_line
 

@@ -9,7 +9,6 @@ import time
 
 import httpx
 import pytest
-
 from labs import start_lab
 
 PROBLEM = "application/problem+json"

@@ -8,7 +8,6 @@ import json
 
 import httpx
 import pytest
-
 from labs import free_port, start_lab
 from tdschema import assert_valid_td
 from test_http_devices import poll

@@ -13,11 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote
 
-
 import httpx
 import pytest
-
-from labs import interrupt, REPO, Lab, free_port, start_lab
+from labs import REPO, Lab, free_port, interrupt, start_lab
 from tdschema import assert_valid_td
 
 TESTS = Path(__file__).resolve().parent
@@ -56,8 +54,8 @@ def probe_td(name: str):
 
 
 def _probe(session, name: str, keys):
-    from twinmesh.wot.problem import Refused
     from twinmesh.fabric.server import ExposedThing
+    from twinmesh.wot.problem import Refused
 
     def refuse(_):
         raise Refused("the probe refuses everything", reason="always")
@@ -74,10 +72,10 @@ def _probe(session, name: str, keys):
 
 def serve(endpoint: str, kind: str, name: str) -> None:
     """Process entry: one `light` or `probe` Thing; prints `exposed` once its liveliness token is out."""
-    from twinmesh.things.lights import Light
-    from twinmesh.lab.supervisor import install_stop_handlers
     from twinmesh.fabric.session import open_session
     from twinmesh.fabric.settings import MeshSettings
+    from twinmesh.lab.supervisor import install_stop_handlers
+    from twinmesh.things.lights import Light
 
     stop = install_stop_handlers()
     settings = MeshSettings(connect=(endpoint,))

@@ -8,8 +8,7 @@ import time
 
 import httpx
 import pytest
-
-from labs import interrupt, free_port, start_lab
+from labs import free_port, interrupt, start_lab
 from test_http_devices import poll, spawn_device
 
 CONTRACT = 2.0  # seconds: the issue's join/leave contract
@@ -116,8 +115,8 @@ def _ok(url: str) -> bool:
 
 def test_observers_are_dropped_when_clients_disconnect(lab, monkeypatch):
     """The adapter in this process (to look at its registry): feeds go when their clients go."""
-    from twinmesh.http import server
     from twinmesh.fabric.settings import MeshSettings
+    from twinmesh.http import server
 
     registries = []
 

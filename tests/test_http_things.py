@@ -6,7 +6,6 @@ from urllib.parse import quote
 
 import httpx
 import pytest
-
 from labs import start_lab
 from tdschema import assert_valid_td
 

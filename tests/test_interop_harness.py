@@ -8,7 +8,6 @@ import socket
 
 import httpx
 import pytest
-
 from interop import npm
 
 pytestmark = [pytest.mark.interop, pytest.mark.timeout(120)]

@@ -15,10 +15,10 @@ import time
 import httpx
 import numpy as np
 import pytest
-
-from twinmesh.sim.robot import workspace_from_csv
 from labs import start_lab
 from tdschema import assert_valid_td
+
+from twinmesh.sim.robot import workspace_from_csv
 
 SAMPLES = "4000"
 PROBLEM = "application/problem+json"

@@ -14,15 +14,15 @@ from contextlib import ExitStack
 import msgspec
 import numpy as np
 import pytest
+from labs import free_port
+from tdschema import assert_valid_td
 
 from twinmesh.sim.pan_tilt import NOTHING, PanTilt
-from twinmesh.things.pan_tilt import expose_pan_tilt, pan_tilt_td
 from twinmesh.sim.sensors import reading_of
 from twinmesh.sim.world import World, static_box
-from labs import free_port
+from twinmesh.things.pan_tilt import expose_pan_tilt, pan_tilt_td
 from twinmesh.wot.problem import BadInput, Problem
 from twinmesh.wot.td import thing_id, zenoh_forms
-from tdschema import assert_valid_td
 
 BASE = (0.0, 0.0, 0.75)        # the unit stands on a table, looking along +x at home
 CAMERA_Z = BASE[2] + 0.09      # the tilt axis, 9 cm above the mount
@@ -216,7 +216,8 @@ def test_the_same_colour_on_another_body_is_a_change(unit, world, names):
 def test_the_td_is_valid_and_keeps_the_reference_affordances_and_inputs():
     from pathlib import Path
 
-    reference = json.loads((Path(__file__).resolve().parents[1] / "twinmesh" / "things" / "tds" / "pan-tilt.json").read_text())
+    tds = Path(__file__).resolve().parents[1] / "twinmesh" / "things" / "tds"
+    reference = json.loads((tds / "pan-tilt.json").read_text())
     td = pan_tilt_td("pan-tilt-1")
     served = msgspec.to_builtins(zenoh_forms(td, "wot", "pan-tilt-1"))
     assert_valid_td(served)

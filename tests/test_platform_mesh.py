@@ -13,7 +13,6 @@ import msgspec
 import numpy as np
 import psutil
 import pytest
-
 from labs import start_lab
 from test_platform_tds import THINGS, mesh_client
 
@@ -129,8 +128,8 @@ def _drain(q: queue.Queue, quiet: float, limit: float = 10.0) -> list:
 
 
 def test_world_publishes_poses_of_both_robots_and_the_cubes_throttled_and_ends_on_the_final_state(http, client):
-    from twinmesh.sim.compensation import DOBOT_MAIN_JOINTS, DOBOT_PASSIVE_JOINTS, UARM_MAIN_JOINTS, UARM_PASSIVE_JOINTS
     from twinmesh.messages.scene import Poses
+    from twinmesh.sim.compensation import DOBOT_MAIN_JOINTS, DOBOT_PASSIVE_JOINTS, UARM_MAIN_JOINTS, UARM_PASSIVE_JOINTS
 
     q: queue.Queue = queue.Queue()
     sub = client.observe("world", "poses", q.put)

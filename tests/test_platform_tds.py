@@ -16,7 +16,6 @@ from typing import Any, Iterator
 import httpx
 import numpy as np
 import pytest
-
 from labs import start_lab
 from tdschema import REFERENCE_TDS, assert_valid_td
 
@@ -116,8 +115,8 @@ def test_twin_tds_say_their_deviations_in_their_descriptions():
 
 def test_the_declared_location_range_holds_every_position_the_uarm_can_take():
     """node-wot validates read values: `location` must never leave its declared ranges (all motor angles)."""
-    from twinmesh.things.platform import LOCATION_RANGE
     from twinmesh.sim.uarm import BETWEEN_ARMS_DEG, LIMITS_DEG, real_fk
+    from twinmesh.things.platform import LOCATION_RANGE
 
     grids = [np.radians(np.linspace(*LIMITS_DEG[j], n)) for j, n in
              (("base", 61), ("lower_arm", 160), ("upper_arm", 160))]

@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-
 from labs import REPO, free_port
 
 README = REPO / "README.md"

@@ -6,7 +6,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from labs import start_lab, stop_process
 
 from twinmesh.recorder import mapping

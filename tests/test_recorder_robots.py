@@ -15,14 +15,13 @@ from pathlib import Path
 import msgspec
 import numpy as np
 import pytest
-
 from labs import REPO, start_lab, stop_process
 from test_recorder import RERUN, read_column, scalars, texts, wait_for_line
 
+from twinmesh.fabric.settings import MeshSettings
+from twinmesh.messages.scene import Pose, RobotModel, SceneDescription, TwinDescription
 from twinmesh.recorder.robots import RobotDrawer, RobotFiles, Workspace, joint_units, link_file, to_twin_frame
 from twinmesh.recorder.scene import SceneDrawer, SceneFiles, lab_blueprint
-from twinmesh.messages.scene import Pose, RobotModel, SceneDescription, TwinDescription
-from twinmesh.fabric.settings import MeshSettings
 from twinmesh.wot.td import DataSchema, Link, PropertyAffordance, ThingDescription
 
 UR10_URDF = (REPO / "twinmesh" / "robot" / "models" / "ur10.urdf").read_text()
@@ -96,8 +95,8 @@ def joint_sample(i: int) -> dict[str, float]:
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
     """Serve `ur10` here, record its sweep, regenerate its workspace (TD re-published), stop with Ctrl-C."""
-    from twinmesh.fabric.session import open_session
     from twinmesh.fabric.server import ExposedThing
+    from twinmesh.fabric.session import open_session
 
     tmp = tmp_path_factory.mktemp("rec-robots")
     lab = start_lab(tmp, "lights", http=False, things={"light-left"})
@@ -379,9 +378,9 @@ def _wait_workspace(lab, thing: str, timeout: float) -> dict:
 def _safe_target(lab, td: dict) -> dict[str, float]:
     """A collision-free sampled point whose ten nearest samples are free too, near the free points' middle."""
     from twinmesh.fabric.client import MeshClient
-    from twinmesh.wot.problem import Unavailable
-    from twinmesh.recorder.robots import read_points
     from twinmesh.fabric.session import open_session
+    from twinmesh.recorder.robots import read_points
+    from twinmesh.wot.problem import Unavailable
     from twinmesh.wot.td import decode_td
 
     settings = MeshSettings(connect=(lab.endpoint,))
@@ -404,3 +403,30 @@ def _safe_target(lab, td: dict) -> dict[str, float]:
     middle = xyz[~colliding].mean(axis=0)
     best = xyz[safe[np.argmin(np.linalg.norm(xyz[safe] - middle, axis=1))]]
     return {a: round(float(v), 1) for a, v in zip("xyz", best)}
+
+
+def test_a_mesh_based_urdf_is_drawn_with_its_meshes():
+    """The Panda's links are meshes (`package://meshes/...`): the recorder resolves them against the
+    URDF's own folder, as pybullet does, so the recording holds a mesh per link, not only frames."""
+    import pybullet_data
+
+    from twinmesh.recorder.scene import Robot
+
+    urdf = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
+    robot = Robot.load("panda", urdf.read_text(), "world/robots/panda", urdf.parent)
+    chunks, _ = robot.static_chunks()
+    meshes = {c.entity_path for c in chunks if any(f.name.startswith("Asset3D:") for f in c.to_record_batch().schema)}
+    links = {"panda_link0", "panda_link1", "panda_link2", "panda_link3", "panda_link4", "panda_link5", "panda_link6",
+             "panda_link7", "panda_hand", "panda_leftfinger", "panda_rightfinger"}
+    assert {link for link in links if any(f"/{link}/" in m for m in meshes)} == links, meshes
+    assert robot.missing == []
+
+
+def test_a_mesh_that_cannot_be_found_is_named_with_where_it_was_looked_for(tmp_path):
+    from twinmesh.recorder.scene import Robot
+
+    urdf = ('<robot name="r"><link name="base"><visual><geometry><mesh filename="package://arm/meshes/base.stl"/>'
+            '</geometry></visual></link></robot>')
+    robot = Robot.load("r", urdf, "world/robots/r", tmp_path)
+    assert robot.missing and robot.missing[0].startswith("mesh package://arm/meshes/base.stl not found (looked in ")
+    assert str(tmp_path / "arm" / "meshes" / "base.stl") in robot.missing[0]

@@ -12,13 +12,12 @@ from pathlib import Path
 
 import msgspec
 import pytest
-
 from labs import REPO, start_lab, stop_process
 from test_recorder import RERUN, read_column, scalars, texts, wait_for_line
 
-from twinmesh.recorder.scene import SceneDrawer, SceneFiles
-from twinmesh.messages.scene import Body, Pose, Poses, RobotModel, SceneDescription
 from twinmesh.fabric.settings import MeshSettings
+from twinmesh.messages.scene import Body, Pose, Poses, RobotModel, SceneDescription
+from twinmesh.recorder.scene import SceneDrawer, SceneFiles
 from twinmesh.wot.td import PropertyAffordance, ThingDescription
 
 UARM_URDF = (REPO / "twinmesh" / "robot" / "models" / "uarm_swift_pro.urdf").read_text()
@@ -54,8 +53,8 @@ FIRST = Poses(time=0.0, joints={"uarm": {"lower_arm": 0.05}}, bodies={"cube": CU
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
     """Serve `world` here, record while it publishes the sweep at about 200 samples/s, stop with Ctrl-C."""
-    from twinmesh.fabric.session import open_session
     from twinmesh.fabric.server import ExposedThing
+    from twinmesh.fabric.session import open_session
 
     tmp = tmp_path_factory.mktemp("rec-scene")
     lab = start_lab(tmp, "lights", http=False, things={"light-left"})
@@ -219,7 +218,8 @@ def _platform_missing() -> str | None:
 
 @pytest.mark.skipif(_platform_missing() is not None, reason=str(_platform_missing()))
 def test_cube_workflow_recording_shows_both_arms_and_the_cube_round_trip(tmp_path):
-    from twinmesh.sim.layouts.platform import LAYOUT, UARM_BASE as PLATFORM_UARM
+    from twinmesh.sim.layouts.platform import LAYOUT
+    from twinmesh.sim.layouts.platform import UARM_BASE as PLATFORM_UARM
 
     path = tmp_path / "platform.rrd"
     lab = start_lab(tmp_path, "iot-platform", http=False, things={"world", "uarm", "dobot"},

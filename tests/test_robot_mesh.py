@@ -20,11 +20,11 @@ import httpx
 import numpy as np
 import pytest
 import trimesh
-
-from twinmesh.sim.robot import workspace_from_csv
 from interop import npm
 from labs import start_lab, stop_process
 from tdschema import assert_valid_td
+
+from twinmesh.sim.robot import workspace_from_csv
 
 SAMPLES = "6000"
 CLOSER = ("--base", "0", "0.25", "0.625", "0")

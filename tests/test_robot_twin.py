@@ -9,21 +9,21 @@ from contextlib import ExitStack
 import msgspec
 import numpy as np
 import pytest
-
-from twinmesh.sim.robot import Base, RobotTwin, TdFrame, workspace_from_csv
-from twinmesh.things.robot import RobotThing, provisional_td
-from twinmesh.sim.world import World
 from labs import free_port
+from tdschema import assert_valid_td
+
 from twinmesh.fabric.client import MeshClient
-from twinmesh.wot.problem import Problem
 from twinmesh.fabric.session import open_session
 from twinmesh.fabric.settings import MeshSettings
-from twinmesh.wot.td import decode_td
 from twinmesh.robot.calibration import fit_calibration
-from twinmesh.tdgen.generate import generate
 from twinmesh.robot.surroundings import BoxBody, build_into
+from twinmesh.sim.robot import Base, RobotTwin, TdFrame, workspace_from_csv
+from twinmesh.sim.world import World
+from twinmesh.tdgen.generate import generate
+from twinmesh.things.robot import RobotThing, provisional_td
 from twinmesh.things.tdgen import TdgenService, twin_hash
-from tdschema import assert_valid_td
+from twinmesh.wot.problem import Problem
+from twinmesh.wot.td import decode_td
 
 SAMPLES = 4000
 
@@ -204,6 +204,10 @@ def test_a_new_obstacle_regenerates_a_smaller_workspace_and_td_observers_see_it(
         observer = stack.enter_context(open_session(mesh))
         stack.enter_context(TdgenService(stack.enter_context(open_session(mesh)), mesh, tmp_path / "cache", 1))
         observer.declare_subscriber(mesh.keys.td("ur10"), lambda s: tds.put(decode_td(s.payload.to_bytes())))
+        progress: list[tuple[int, float]] = []  # (twin version, fraction) as the service publishes them
+        observer.declare_subscriber(mesh.keys.property("tdgen", "robots"), lambda s: progress.extend(
+            (r["version"], r["progress"]) for r in [msgspec.json.decode(s.payload.to_bytes()).get("ur10", {})]
+            if "progress" in r))
         thing = stack.enter_context(RobotThing(stack.enter_context(open_session(mesh)), mesh, twin, samples=SAMPLES))
         client = MeshClient(observer, mesh)
 
@@ -225,6 +229,9 @@ def test_a_new_obstacle_regenerates_a_smaller_workspace_and_td_observers_see_it(
         assert "box" in client.file("ur10", "scene.json").payload.decode()
         robots = client.read("tdgen", "robots")
         assert robots["ur10"]["status"] == "ready" and robots["ur10"]["version"] == 1
+        regenerating = [f for version, f in progress if version == 1]  # the service shows how far it is
+        assert regenerating[0] == 0.0 and regenerating[-1] == 1.0 and regenerating == sorted(regenerating), progress
+        assert "progress" not in robots["ur10"], "a finished generation has no progress figure"
         assert robots["ur10"]["hash"] == twin.workspace_hash and robots["ur10"]["cached"] is False
         with pytest.raises(Problem) as err:  # where the box now stands
             client.invoke("ur10", "moveToCartesianPosition", dict(zip("xyz", target.tolist())))

@@ -8,8 +8,8 @@ import pytest
 import trimesh
 
 from twinmesh.robot.calibration import CalibrationError, fit_calibration, load_calibration, read_pairs
-from twinmesh.tdgen.generate import generate
 from twinmesh.robot.workspace import read_points_csv
+from twinmesh.tdgen.generate import generate
 
 K, B = np.array([1.02, -0.98, 0.5]), np.array([12.0, -40.0, 100.0])
 

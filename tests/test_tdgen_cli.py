@@ -51,7 +51,7 @@ def test_check_exits_0_for_a_good_target_and_1_with_the_reason_for_a_bad_one(td_
 
 def test_check_of_a_directory_without_points_says_so(tmp_path):
     result = _run("check", tmp_path, 0, 0, 0)
-    assert result.exit_code == 1 and "no points.csv" in result.output and "Traceback" not in result.output
+    assert result.exit_code == 2 and "no points.csv" in result.output and "Traceback" not in result.output
 
 
 def _broken(tmp_path):

@@ -9,13 +9,13 @@ import numpy as np
 import pybullet as pb
 import pytest
 import trimesh
+from tdschema import assert_valid_td
 
+from twinmesh.robot.model import Robot
+from twinmesh.robot.surroundings import load_scene
+from twinmesh.robot.workspace import read_points_csv
 from twinmesh.robot.workspace_check import Workspace
 from twinmesh.tdgen.generate import generate
-from twinmesh.robot.model import Robot
-from twinmesh.robot.workspace import read_points_csv
-from twinmesh.robot.surroundings import load_scene
-from tdschema import assert_valid_td
 
 ROBOTS = ["franka_panda/panda.urdf", "kuka_iiwa/model.urdf", "xarm/xarm6_robot.urdf", "ur10.urdf"]
 SAMPLES = 4000

@@ -6,13 +6,12 @@ import csv
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from test_tdgen_kinematics import ROBOTS, level, linkage_urdf, random_q
 
-from twinmesh.robot import ik
 from twinmesh.cli.ik import ik_command
+from twinmesh.robot import ik
 from twinmesh.robot.kinematics import ForwardKinematics
 from twinmesh.robot.model import Robot
-
-from test_tdgen_kinematics import ROBOTS, level, linkage_urdf, random_q
 
 
 def within_limits(robot: Robot, q: np.ndarray) -> bool:
@@ -117,7 +116,7 @@ def test_cli_solves_a_csv_of_targets(tmp_path):
 ])
 def test_cli_errors_are_messages_not_tracebacks(args, message):
     result = CliRunner().invoke(ik_command, args)
-    assert result.exit_code == 1 and message in result.output
+    assert result.exit_code == 2 and message in result.output
     assert isinstance(result.exception, SystemExit)
 
 
@@ -125,5 +124,5 @@ def test_cli_names_the_bad_csv_line(tmp_path):
     src = tmp_path / "targets.csv"
     src.write_text("100,200,300\n100,abc,300\n")
     result = CliRunner().invoke(ik_command, ["ur10.urdf", "--targets", str(src)])
-    assert result.exit_code == 1
+    assert result.exit_code == 2
     assert "targets.csv line 2: expected x,y,z in mm, got '100,abc,300'" in result.output

@@ -10,8 +10,8 @@ import pybullet as pb
 import pybullet_data
 import pytest
 
-from twinmesh.robot.model import Robot
 from twinmesh.robot.collision import CollisionWorld
+from twinmesh.robot.model import Robot
 from twinmesh.robot.surroundings import (
     BoxBody,
     CylinderBody,

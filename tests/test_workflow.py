@@ -10,7 +10,6 @@ import subprocess
 
 import numpy as np
 import pytest
-
 from interop import npm
 from labs import start_lab
 from test_platform_tds import THINGS, mesh_client

@@ -73,7 +73,8 @@ def main() -> None:
     args = parser.parse_args()
     print(f"{args.targets} reachable random targets per robot; times per target\n")
     print(f"{'robot':10} | {'ours ≤0.01mm':>12} {'max err mm':>10} {'median ms':>9} {'p99 ms':>7} "
-          f"{'batch ms':>8} {'batch ok':>8} | {'pybullet ≤1mm':>13} {'≤0.01mm':>7} {'median ms':>9} | {'time ours/pb':>12}")
+          f"{'batch ms':>8} {'batch ok':>8} | {'pybullet ≤1mm':>13} {'≤0.01mm':>7} {'median ms':>9} | "
+          f"{'time ours/pb':>12}")
     for urdf in ROBOTS:
         robot = Robot.load(urdf)
         fk = ForwardKinematics(robot)
@@ -81,7 +82,8 @@ def main() -> None:
         targets = fk.positions(rng.uniform(robot.lows(), robot.highs(), (args.targets, len(robot.joints))))
         a, b = ours(fk, targets, rng), pybullet_baseline(robot, targets)
         print(f"{robot.name:10} | {a['solved']:12.2%} {a['max'] * 1e3:10.2e} {a['median'] * 1e3:9.2f} "
-              f"{a['p99'] * 1e3:7.2f} {a['batch_time'] * 1e3:8.3f} {a['batch_solved']:8.2%} | {b['1mm']:13.2%} {b['0.01mm']:7.2%} "
+              f"{a['p99'] * 1e3:7.2f} {a['batch_time'] * 1e3:8.3f} {a['batch_solved']:8.2%} | "
+              f"{b['1mm']:13.2%} {b['0.01mm']:7.2%} "
               f"{b['median'] * 1e3:9.3f} | {a['median'] / b['median']:11.1f}x")
         if not a["inside"]:
             print(f"  !! {robot.name}: a solution outside the joint limits")

@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs, te
 from labs import start_lab  # noqa: E402
 from test_platform_tds import THINGS, mesh_client  # noqa: E402
 
+
 def lab_processes(pid: int) -> dict[str, psutil.Process]:
     """The supervisor and its children by the role each shows in `ps` (`twinmesh: <role>`); the
     multiprocessing resource tracker, which has no role, is left out."""

@@ -21,9 +21,12 @@ import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Callable, ContextManager, Iterator, Protocol
+from typing import TYPE_CHECKING, Any, Callable, ContextManager, Iterator, Protocol
 
 import click
+
+if TYPE_CHECKING:
+    import httpx
 
 from twinmesh.fabric.client import NOTHING, MeshClient
 from twinmesh.wot.problem import Problem, TimedOut
@@ -200,7 +203,7 @@ class MeshConsumer:
 
 
 # --- over WoT HTTP --------------------------------------------------------------------------------
-def _problem(r: "httpx.Response") -> Problem:  # noqa: F821
+def _problem(r: httpx.Response) -> Problem:
     if r.headers.get("content-type", "").startswith("application/problem+json"):
         return Problem.from_json(r.content)
     return Problem(f"{r.request.method} {r.request.url}: HTTP {r.status_code} {r.text[:200]}", status=r.status_code)
@@ -209,7 +212,7 @@ def _problem(r: "httpx.Response") -> Problem:  # noqa: F821
 class _SseWatch:
     """One SSE stream read by a thread; open (the adapter registered it) once the headers arrived."""
 
-    def __init__(self, http: "httpx.Client", url: str, timeout: float = 10.0):  # noqa: F821
+    def __init__(self, http: httpx.Client, url: str, timeout: float = 10.0):
         self.queue: queue.Queue = queue.Queue()
         self._opened = threading.Event()
         self._closing = False

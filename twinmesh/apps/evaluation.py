@@ -4,8 +4,9 @@
 target (mm, in its TD's frame) with `moveToCartesianPosition`, then reads `getCartesianposition` and
 `getJointposition`, and writes one row per target: the target, `reached` or `refused`, where the end
 effector is, the error (mm) and the joint values (reached targets only: a refused target leaves
-those columns empty, since nothing moved), the refusal reason; then the mean and max error. Only the affordance names of SPEC §4 are used, so the same command measures
-any robot Thing that has them, twin or not.
+those columns empty, since nothing moved), the refusal reason; then the mean and max error. Only
+the affordance names of SPEC §4 are used, so the same command measures any robot Thing that has
+them, twin or not.
 """
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Iterable, Protocol
 
 import click
 
@@ -41,7 +42,7 @@ class IkRow:
 
 def read_targets(path: str | Path) -> list[tuple[float, float, float]]:
     """x,y,z (mm) per row; a header line and `#` comments are skipped; extra columns are ignored."""
-    targets = []
+    targets: list[tuple[float, float, float]] = []
     with open(path, newline="") as f:
         for n, row in enumerate(csv.reader(f), 1):
             if not row or row[0].lstrip().startswith("#"):
@@ -58,7 +59,8 @@ def read_targets(path: str | Path) -> list[tuple[float, float, float]]:
     return targets
 
 
-def evaluate_ik(c: Consumer, thing: str, targets: list[tuple[float, float, float]]) -> list[IkRow]:
+def evaluate_ik(c: Consumer, thing: str, targets: Iterable[tuple[float, float, float]]) -> list[IkRow]:
+    """One row per target, in order (pass a progress-reporting iterable to show progress)."""
     rows = []
     for target in targets:
         status, reason, detail = "reached", "", ""

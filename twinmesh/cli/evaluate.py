@@ -7,8 +7,10 @@ from contextlib import contextmanager
 from typing import Iterator
 
 import click
+from tqdm import tqdm
 
 from twinmesh.apps.evaluation import Consumer, HttpThings, evaluate_ik, read_targets, summary, write_table
+from twinmesh.cli.exits import problem_exit
 from twinmesh.fabric.client import MeshClient
 from twinmesh.wot.problem import Problem
 
@@ -22,7 +24,6 @@ def consumer(settings, via: str | None) -> Iterator[Consumer]:
         finally:
             things.close()
         return
-    from twinmesh.wot.problem import Problem
     from twinmesh.fabric.session import one_shot_session
 
     mode_given = click.get_current_context().find_root().params.get("mode") is not None
@@ -30,7 +31,7 @@ def consumer(settings, via: str | None) -> Iterator[Consumer]:
         with one_shot_session(settings, mode_given) as session:
             yield MeshClient(session, settings)
     except Problem as p:
-        raise click.ClickException(str(p)) from None
+        raise problem_exit(p) from None
 
 
 # --- the command ----------------------------------------------------------------------------------
@@ -52,9 +53,9 @@ def ik_command(settings, thing: str, targets: str, via: str | None, out: str | N
     points = read_targets(targets)
     with consumer(settings, via) as c:
         try:
-            rows = evaluate_ik(c, thing, points)
+            rows = evaluate_ik(c, thing, tqdm(points, unit="targets", file=sys.stderr, disable=not sys.stderr.isatty()))
         except Problem as p:
-            raise click.ClickException(str(p)) from None
+            raise problem_exit(p) from None
     if out:
         with open(out, "w", newline="") as f:
             write_table(rows, f)

@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import csv
 import io
+import sys
 import time
 from pathlib import Path
 
 import click
 import numpy as np
+from tqdm import tqdm
 
+from twinmesh.cli.exits import usage_exit
 from twinmesh.robot import ik
 from twinmesh.robot.kinematics import ForwardKinematics
 from twinmesh.robot.model import Robot, RobotError
@@ -23,7 +26,7 @@ def _load(urdf: str, ee: str | None) -> ForwardKinematics:
     try:
         return ForwardKinematics(Robot.load(urdf, ee=ee))
     except RobotError as exc:
-        raise click.ClickException(str(exc)) from None
+        raise usage_exit(str(exc)) from None
 
 
 def _seed(fk: ForwardKinematics, text: str | None) -> np.ndarray | None:
@@ -32,9 +35,9 @@ def _seed(fk: ForwardKinematics, text: str | None) -> np.ndarray | None:
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
-        raise click.ClickException(f"--seed: expected comma-separated numbers, got {text!r}") from None
+        raise usage_exit(f"--seed: expected comma-separated numbers, got {text!r}") from None
     if len(values) != fk.n:
-        raise click.ClickException(f"--seed: {fk.robot.name} has {fk.n} main joints, got {len(values)} values")
+        raise usage_exit(f"--seed: {fk.robot.name} has {fk.n} main joints, got {len(values)} values")
     return fk.robot.from_user_units(np.array(values))
 
 
@@ -43,7 +46,7 @@ def _read_targets(path: Path) -> np.ndarray:
     try:
         text = path.read_text()
     except OSError as exc:
-        raise click.ClickException(f"{path}: cannot read targets ({exc.strerror})") from None
+        raise usage_exit(f"{path}: cannot read targets ({exc.strerror})") from None
     rows = []
     for line_no, row in enumerate(csv.reader(io.StringIO(text)), start=1):
         if not row or not "".join(row).strip():
@@ -55,9 +58,9 @@ def _read_targets(path: Path) -> np.ndarray:
         except ValueError:
             if line_no == 1:
                 continue
-            raise click.ClickException(f"{path} line {line_no}: expected x,y,z in mm, got {','.join(row)!r}") from None
+            raise usage_exit(f"{path} line {line_no}: expected x,y,z in mm, got {','.join(row)!r}") from None
     if not rows:
-        raise click.ClickException(f"{path}: no targets")
+        raise usage_exit(f"{path}: no targets")
     return np.array(rows)
 
 
@@ -107,7 +110,7 @@ def _solve_csv(fk: ForwardKinematics, targets_mm: np.ndarray, out: Path | None,
                q0: np.ndarray | None, tol_m: float) -> None:
     robot, rng = fk.robot, np.random.default_rng(0)
     rows, times, solved = [], [], 0
-    for target in targets_mm:
+    for target in tqdm(targets_mm, unit="targets", file=sys.stderr, disable=not sys.stderr.isatty()):
         t0 = time.perf_counter()
         res = ik.solve(fk, target / 1000, seed=q0, tol=tol_m, rng=rng)
         times.append(time.perf_counter() - t0)
@@ -122,7 +125,7 @@ def _solve_csv(fk: ForwardKinematics, targets_mm: np.ndarray, out: Path | None,
             writer.writerow(header)
             writer.writerows([[f"{v:.6f}" for v in row] for row in rows])
     except OSError as exc:
-        raise click.ClickException(f"{out}: cannot write ({exc.strerror})") from None
+        raise usage_exit(f"{out}: cannot write ({exc.strerror})") from None
     n = len(targets_mm)
     click.echo(f"solved {solved}/{n} ({solved / n:.2%}) within {tol_m * 1000:g} mm; "
                f"median {np.median(times) * 1000:.2f} ms per target", err=True)

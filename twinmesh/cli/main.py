@@ -10,10 +10,12 @@ from typing import Any
 import click
 import msgspec
 
+from twinmesh.cli import completion
+from twinmesh.cli.exits import UNREACHABLE, CommandFailed, problem_exit, usage_exit
 from twinmesh.fabric.client import NOTHING, MeshClient
-from twinmesh.wot.problem import Problem
-from twinmesh.lab.supervisor import ProcessSpec, Supervisor, set_title
 from twinmesh.fabric.settings import DEFAULT_ENDPOINT, MeshSettings
+from twinmesh.lab.supervisor import ProcessSpec, Supervisor, set_title
+from twinmesh.wot.problem import Problem
 
 ADAPTER = "twinmesh.http.server:run"
 RECORDER = "twinmesh.recorder.logger:run"
@@ -124,16 +126,17 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
 
     Prints one line with the word `ready` once every Thing answers (scripts: `twinmesh wait`).
     Ctrl-C stops it all."""
-    from twinmesh.lab.scenes import DEFAULT_SCENE, scene_specs, scene_things
     from twinmesh.lab.readiness import LabDied, LabStatus, PortTaken, free_or_problem, serve_status, wait_ready
-    from twinmesh.things.tdgen import THING as TDGEN_THING, default_cache_dir
+    from twinmesh.lab.scenes import DEFAULT_SCENE, scene_specs, scene_things
+    from twinmesh.things.tdgen import THING as TDGEN_THING
+    from twinmesh.things.tdgen import default_cache_dir
 
     scene = scene or DEFAULT_SCENE
     try:
         specs = scene_specs(scene, speed=_speed(speed), samples=samples)
         things = [TDGEN_THING, *scene_things(scene)]
     except KeyError as e:
-        raise click.ClickException(str(e.args[0])) from None
+        raise usage_exit(str(e.args[0])) from None
     if zenoh_endpoint:
         settings = msgspec.structs.replace(settings, connect=(zenoh_endpoint,))
     address = None if no_http else _host_port(http)
@@ -161,7 +164,7 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
         sup.shutdown()
         if e.detail == "stopped":
             sys.exit(0)
-        raise click.ClickException(f"{e.detail} while the lab was starting (its log is above); stopped the lab")
+        raise click.ClickException(f"{e.detail} while the lab was starting (its log is above); stopped the lab") from None
     except Problem as e:
         sup.shutdown()
         raise click.ClickException(f"{e.detail}; stopped the lab") from None
@@ -202,7 +205,7 @@ def wait(settings: MeshSettings, timeout: float, things: tuple[str, ...]) -> Non
     try:
         status = wait_ready(settings, lambda: _lab_client(settings), list(things) or None, timeout)
     except Problem as e:
-        raise click.ClickException(f"no ready lab at {', '.join(settings.connect)}: {e.detail}") from None
+        raise CommandFailed(f"no ready lab at {', '.join(settings.connect)}: {e.detail}", UNREACHABLE) from None
     if status is None:
         click.echo(f"ready: {', '.join(things)}")
     else:
@@ -272,7 +275,7 @@ def _client(settings: MeshSettings):
         with one_shot_session(settings, _mode_given()) as session:
             yield MeshClient(session, settings)
     except Problem as p:
-        raise click.ClickException(str(p)) from None
+        raise problem_exit(p) from None
 
 
 def _mode_given() -> bool:
@@ -300,7 +303,7 @@ def things(settings: MeshSettings) -> None:
 
 
 @main.command()
-@click.argument("thing")
+@click.argument("thing", shell_complete=completion.things)
 @click.pass_obj
 def td(settings: MeshSettings, thing: str) -> None:
     """Print a Thing's TD (with its Zenoh forms)."""
@@ -309,8 +312,8 @@ def td(settings: MeshSettings, thing: str) -> None:
 
 
 @main.command()
-@click.argument("thing")
-@click.argument("prop")
+@click.argument("thing", shell_complete=completion.things)
+@click.argument("prop", shell_complete=completion.properties)
 @click.pass_obj
 def read(settings: MeshSettings, thing: str, prop: str) -> None:
     """Read a property."""
@@ -319,8 +322,8 @@ def read(settings: MeshSettings, thing: str, prop: str) -> None:
 
 
 @main.command()
-@click.argument("thing")
-@click.argument("prop")
+@click.argument("thing", shell_complete=completion.things)
+@click.argument("prop", shell_complete=completion.writable_properties)
 @click.argument("value")
 @click.pass_obj
 def write(settings: MeshSettings, thing: str, prop: str, value: str) -> None:
@@ -331,8 +334,8 @@ def write(settings: MeshSettings, thing: str, prop: str, value: str) -> None:
 
 
 @main.command()
-@click.argument("thing")
-@click.argument("action")
+@click.argument("thing", shell_complete=completion.things)
+@click.argument("action", shell_complete=completion.actions)
 @click.argument("input", required=False)
 @click.pass_obj
 def invoke(settings: MeshSettings, thing: str, action: str, input: str | None) -> None:
@@ -345,7 +348,7 @@ def invoke(settings: MeshSettings, thing: str, action: str, input: str | None) -
 
 
 @main.command(context_settings={"ignore_unknown_options": True})  # lets X Y Z be negative
-@click.argument("thing")
+@click.argument("thing", shell_complete=completion.things)
 @click.argument("xyz", nargs=-1, type=float, metavar="[X Y Z]")
 @click.option("--joints", metavar="JSON", help="Plan to these joint values instead ('{\"joint\": deg, ...}').")
 @click.pass_obj
@@ -384,8 +387,8 @@ def _follow(settings: MeshSettings, subscribe_name: str, thing: str, name: str, 
 
 
 @main.command()
-@click.argument("thing")
-@click.argument("prop")
+@click.argument("thing", shell_complete=completion.things)
+@click.argument("prop", shell_complete=completion.observable_properties)
 @click.option("--count", type=int, help="Stop after this many changes.")
 @click.pass_obj
 def observe(settings: MeshSettings, thing: str, prop: str, count: int | None) -> None:
@@ -394,8 +397,8 @@ def observe(settings: MeshSettings, thing: str, prop: str, count: int | None) ->
 
 
 @main.command()
-@click.argument("thing")
-@click.argument("event")
+@click.argument("thing", shell_complete=completion.things)
+@click.argument("event", shell_complete=completion.events)
 @click.option("--count", type=int, help="Stop after this many events.")
 @click.pass_obj
 def subscribe(settings: MeshSettings, thing: str, event: str, count: int | None) -> None:

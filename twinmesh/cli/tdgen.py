@@ -6,15 +6,17 @@ a workspace with no volume) ends as a one-line click error, never a traceback.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 import click
 
-from twinmesh.robot.calibration import CalibrationError
-from twinmesh.robot.workspace_check import DEFAULT_K, DEFAULT_MAX_PROBABILITY, DEFAULT_RADIUS_MM, Workspace
-from twinmesh.tdgen.generate import DEFAULT_SAMPLES, generate
+from twinmesh.cli.exits import usage_exit
+from twinmesh.robot.calibration import CalibrationError, Model
 from twinmesh.robot.model import Robot, RobotError
 from twinmesh.robot.surroundings import SceneError
 from twinmesh.robot.workspace import WorkspaceError
+from twinmesh.robot.workspace_check import DEFAULT_K, DEFAULT_MAX_PROBABILITY, DEFAULT_RADIUS_MM, Workspace
+from twinmesh.tdgen.generate import DEFAULT_SAMPLES, Frame, generate
 
 USER_ERRORS = (RobotError, SceneError, CalibrationError, WorkspaceError)
 
@@ -50,10 +52,10 @@ def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir
     try:
         robot = Robot.load(urdf, ee=ee)
         result = generate(robot, scene, samples, seed, Path(out_dir or f"td-{_slug(robot.name)}"), base_url,
-                          calibration, frame, concave, progress=not no_progress, title=title,
-                          thing_id=thing_id, workers=workers, calibration_model=calibration_model)
+                          calibration, cast(Frame, frame), concave, progress=not no_progress, title=title,
+                          thing_id=thing_id, workers=workers, calibration_model=cast(Model, calibration_model))
     except USER_ERRORS as exc:
-        raise click.ClickException(str(exc)) from None
+        raise usage_exit(str(exc)) from None
     low, high = result.low_mm, result.high_mm
     click.echo(f"{robot.name}: {result.samples} samples, {result.collision_free} collision-free "
                f"({result.timings['sampling']:.1f} s sampling)")
@@ -90,7 +92,7 @@ def check_command(td_dir: str, x: float, y: float, z: float, k: int, radius: flo
     try:
         workspace = Workspace.load(td_dir)
     except (OSError, ValueError, WorkspaceError) as exc:
-        raise click.ClickException(str(exc)) from None
+        raise usage_exit(str(exc)) from None
     result = workspace.check((x, y, z), k=k, radius=radius, max_probability=max_probability)
     place = "inside" if result.inside else "outside"
     probability = "unknown" if result.collision_probability is None else f"{result.collision_probability:.2f}"

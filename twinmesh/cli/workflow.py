@@ -15,6 +15,7 @@ from twinmesh.apps.cube_workflow import (
     StepFailed,
     cube_workflow,
 )
+from twinmesh.cli.exits import problem_exit
 from twinmesh.fabric.client import MeshClient
 
 
@@ -61,12 +62,12 @@ def _consumer(settings, via: str | None, auth: str | None) -> Iterator[Consumer]
         finally:
             consumer.close()
         return
-    from twinmesh.wot.problem import Problem
     from twinmesh.fabric.session import one_shot_session
+    from twinmesh.wot.problem import Problem
 
     mode_given = click.get_current_context().find_root().params.get("mode") is not None
     try:
         with one_shot_session(settings, mode_given) as session:
             yield MeshConsumer(MeshClient(session, settings))
     except Problem as p:
-        raise click.ClickException(str(p)) from None
+        raise problem_exit(p) from None

@@ -13,9 +13,9 @@ from typing import Any, Callable
 import msgspec
 
 from twinmesh.fabric.keys import Keys
+from twinmesh.fabric.settings import MeshSettings
 from twinmesh.wot.payload import JSON_ERRORS
 from twinmesh.wot.problem import BadGateway, NotFound, Problem, TimedOut, Unavailable
-from twinmesh.fabric.settings import MeshSettings
 from twinmesh.wot.td import AffordanceKind, ThingDescription, decode_td
 
 NOTHING = object()  # "no input" for invoke, distinct from a JSON null input
@@ -61,7 +61,7 @@ class MeshClient:
         """
         timeout = self.settings.query_timeout if timeout is None else timeout
         started = time.monotonic()
-        kwargs = {"timeout": timeout}
+        kwargs: dict[str, Any] = {"timeout": timeout}
         if payload is not None:
             kwargs["payload"] = payload
         for r in self.session.get(key, **kwargs):
@@ -74,9 +74,10 @@ class MeshClient:
                 break  # Zenoh's own timeout error
             raise BadGateway(f"{key}: {err[:200].decode(errors='replace')}")
         elapsed = time.monotonic() - started
-        name = thing or (self.keys.parse(key).thing if self.keys.parse(key) else key)
+        parsed = self.keys.parse(key)
+        name = thing or (parsed.thing if parsed else key)
         if not self.is_alive(name):
-            raise Unavailable(f"{name} is not on the mesh")
+            raise Unavailable(f"{name} is not on the mesh", reason="not-on-mesh")
         if elapsed >= timeout * 0.95:
             raise TimedOut(f"{name} did not answer {key} within {timeout:g} s")
         if what is not None:  # alive, yet nothing serves the key: most likely a wrong name

@@ -25,7 +25,7 @@ from twinmesh.wot.validate import validate
 log = logging.getLogger(__name__)
 
 Read = Callable[[], Any]
-Write = Callable[[Any], None]
+Write = Callable[[Any], object]  # what it returns is ignored
 Act = Callable[[Any], Any]
 FileSource = Callable[[], bytes]
 
@@ -163,7 +163,7 @@ class ExposedThing:
         self.td = self._truthful(self.td)
         self._td_json = self._served_td()
         k, s = self.keys, self.session
-        def serve(key: str, answer: Callable[..., bytes | None], *args: Any, acts: str = "") -> None:
+        def serve(key: str, answer: Callable[..., Any], *args: Any, acts: str = "") -> None:
             self._declared.append(s.declare_queryable(key, self._dispatch(key, acts, answer, *args)))
 
         serve(k.td(self.name), self._answer_td)
@@ -202,7 +202,7 @@ class ExposedThing:
         self.destroy()
 
     # --- query handling (worker threads) ----------------------------------------------------
-    def _dispatch(self, key: str, acts: str, answer: Callable[..., bytes | None], *args: Any):
+    def _dispatch(self, key: str, acts: str, answer: Callable[..., Any], *args: Any):
         """A queryable's callback for the concrete `key`; `acts` says when a query changes something
         ("with-payload": writes, "always": actions), which only a query on exactly `key` may do."""
         def callback(query) -> None:  # runs on a Zenoh thread: never block here
@@ -214,7 +214,10 @@ class ExposedThing:
         name = key.rsplit("/", 1)[-1]
         if not NAME.match(name):  # a wildcard query for files: answer for no name rather than for "**"
             return
-        self._pool.submit(self._serve, query, key, "", lambda _payload: self._file_lookup(name), ())
+        lookup = self._file_lookup
+        if lookup is None:
+            return
+        self._pool.submit(self._serve, query, key, "", lambda _payload: lookup(name), ())
 
     def _serve(self, query, key: str, acts: str, answer, args) -> None:
         try:

@@ -5,9 +5,12 @@ import logging
 import os
 import threading
 from contextlib import ExitStack, contextmanager
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator, Sequence
 
 from twinmesh.fabric.settings import MeshSettings
+
+if TYPE_CHECKING:
+    import zenoh
 
 _log_once = threading.Lock()
 _log_done = False
@@ -24,7 +27,7 @@ def _init_logging() -> None:
 
 
 @contextmanager
-def open_session(settings: MeshSettings) -> Iterator["zenoh.Session"]:  # noqa: F821
+def open_session(settings: MeshSettings) -> Iterator[zenoh.Session]:
     """`with open_session(s) as session:` — the session closes (and its threads end) on exit."""
     import zenoh
 
@@ -39,7 +42,7 @@ def is_connected(session) -> bool:
     return bool(list(info.routers_zid()) or list(info.peers_zid()))
 
 
-def run_router_process(settings: MeshSettings, stop: threading.Event, listen: list[str] = ()) -> None:
+def run_router_process(settings: MeshSettings, stop: threading.Event, listen: Sequence[str] = ()) -> None:
     """Process entry for the lab's router: it listens where the lab's peers connect.
 
     A router that cannot listen (the port was taken after `up` checked it) logs one line and
@@ -57,7 +60,7 @@ def run_router_process(settings: MeshSettings, stop: threading.Event, listen: li
 
 
 @contextmanager
-def one_shot_session(settings: MeshSettings, mode_given: bool = False) -> Iterator["zenoh.Session"]:  # noqa: F821
+def one_shot_session(settings: MeshSettings, mode_given: bool = False) -> Iterator[zenoh.Session]:
     """A session for a short-lived consumer (a CLI command, a workflow).
 
     Client mode unless a mode was asked for: a fresh peer may query before the router's
@@ -65,10 +68,9 @@ def one_shot_session(settings: MeshSettings, mode_given: bool = False) -> Iterat
     Raises Unavailable when no lab is reachable.
     """
     import msgspec
+    import zenoh
 
     from twinmesh.wot.problem import Unavailable
-
-    import zenoh
 
     if not mode_given:
         settings = msgspec.structs.replace(settings, mode="client")
@@ -77,7 +79,7 @@ def one_shot_session(settings: MeshSettings, mode_given: bool = False) -> Iterat
         try:
             session = stack.enter_context(open_session(settings))
         except zenoh.ZError:  # a client that reaches no router fails to open
-            raise Unavailable(unreachable) from None
+            raise Unavailable(unreachable, reason="no-lab") from None
         if not is_connected(session) and settings.mode != "router":
-            raise Unavailable(unreachable)
+            raise Unavailable(unreachable, reason="no-lab")
         yield session

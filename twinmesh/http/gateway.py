@@ -95,7 +95,7 @@ class Registry:
 
     def begin_shutdown(self) -> None:
         """End long-polls and SSE streams now, so that the server can stop with them open."""
-        if not self.closing:
+        if not self.closing and self._deadline is not None:
             self._loop.call_later(self.shutdown_grace, _resolve, self._deadline)  # type: ignore[union-attr]
         self.closing = True
         self.observers.close_all()
@@ -116,6 +116,7 @@ class Registry:
         """
         work = asyncio.ensure_future(anyio.to_thread.run_sync(
             functools.partial(fn, *args), limiter=self._limiter, abandon_on_cancel=True))
+        assert self._deadline is not None, "start() first"
         try:
             await asyncio.wait({work, self._deadline}, return_when=asyncio.FIRST_COMPLETED)
         finally:
@@ -341,8 +342,8 @@ class Registry:
         return self.observers.watch(thing, kind, names)
 
 
-def _resolve(future: asyncio.Future[None]) -> None:
-    if not future.done():
+def _resolve(future: asyncio.Future[None] | None) -> None:
+    if future is not None and not future.done():
         future.set_result(None)
 
 

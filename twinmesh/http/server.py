@@ -59,7 +59,8 @@ def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] 
         registry = Registry(session, settings)
         config = uvicorn.Config(create_app(registry, security), host=host, port=int(port), lifespan="on",
                                 log_config=None, access_log=log.isEnabledFor(logging.DEBUG),
-                                timeout_graceful_shutdown=GRACE, server_header=False)
+                                timeout_graceful_shutdown=GRACE,  # type: ignore[arg-type]  # a float works
+                                server_header=False)
         server = _Server(config)
         asyncio.run(_serve(server, registry, stop))
         log.info("adapter on %s:%s stopped", host, port)

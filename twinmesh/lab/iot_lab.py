@@ -23,13 +23,13 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
 
     `samples`: random configurations the UR10's workspace is sampled with (fewer start faster).
     """
+    from twinmesh.fabric.session import open_session
     from twinmesh.sim.layouts.lab import build_lab
     from twinmesh.things.lights import Light
     from twinmesh.things.pan_tilt import expose_pan_tilt
     from twinmesh.things.platform import PLATFORM_DEVICES, expose_device
     from twinmesh.things.robot import RobotThing
     from twinmesh.things.world import WorldThing
-    from twinmesh.fabric.session import open_session
 
     lab = build_lab(speed=speed)
     with ExitStack() as stack:

@@ -19,10 +19,10 @@ log = logging.getLogger(__name__)
 
 def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0) -> None:
     """Serve the iot-platform's devices and its world until `stop` is set (speed None: as fast as possible)."""
+    from twinmesh.fabric.session import open_session
     from twinmesh.sim.layouts.platform import build_platform
     from twinmesh.things.platform import PLATFORM_DEVICES, expose_device
     from twinmesh.things.world import WorldThing
-    from twinmesh.fabric.session import open_session
 
     platform = build_platform(speed=speed)
     with ExitStack() as stack:

@@ -15,8 +15,8 @@ from typing import Callable, Iterable
 
 import msgspec
 
-from twinmesh.wot.problem import Problem, Unavailable
 from twinmesh.fabric.settings import MeshSettings
+from twinmesh.wot.problem import Problem, Unavailable
 
 STATUS_CHUNK = "_lab/status"
 

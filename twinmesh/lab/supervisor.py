@@ -14,6 +14,7 @@ import signal
 import threading
 import time
 from dataclasses import dataclass, field
+from multiprocessing.process import BaseProcess
 from typing import Any
 
 import msgspec
@@ -113,7 +114,7 @@ class Supervisor:
         self.settings = settings
         self.specs = specs
         self.grace = grace
-        self.procs: dict[str, mp.Process] = {}
+        self.procs: dict[str, BaseProcess] = {}
         self._ctx = mp.get_context("spawn")
         self.stop = StopEvent()
 

@@ -32,15 +32,23 @@ from typing import Any, NamedTuple
 
 import msgspec
 
-from twinmesh.recorder import mapping
 from twinmesh.fabric.client import MeshClient
 from twinmesh.fabric.directory import Directory
 from twinmesh.fabric.keys import Keys
-from twinmesh.wot.problem import BadInput, Problem
-from twinmesh.recorder.robots import JOINTS_PROPERTY, RobotDrawer, WorkspaceFiles, is_robot, read_robot
-from twinmesh.recorder.scene import SceneDrawer, SceneFiles, lab_blueprint
-from twinmesh.messages.scene import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription, TwinDescription
 from twinmesh.fabric.settings import MeshSettings
+from twinmesh.messages.scene import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription, TwinDescription
+from twinmesh.recorder import mapping
+from twinmesh.recorder.robots import (
+    JOINTS_PROPERTY,
+    RobotDrawer,
+    RobotFiles,
+    Workspace,
+    WorkspaceFiles,
+    is_robot,
+    read_robot,
+)
+from twinmesh.recorder.scene import SceneDrawer, SceneFiles, lab_blueprint
+from twinmesh.wot.problem import BadInput, Problem
 from twinmesh.wot.td import ThingDescription, decode_td
 from twinmesh.wot.validate import validate
 
@@ -51,6 +59,7 @@ FLUSH_EVERY = 1.0  # seconds; a killed recorder loses at most about this much
 QUEUE_LIMIT = 200_000  # messages waiting for the writer; beyond it new ones are dropped and counted
 READY_TIMEOUT = 10.0  # how long start() waits for the TDs of the Things already alive
 SETTLE_ROUND, SETTLE_TIMEOUT = 0.2, 3.0  # start() asks who is alive until a round adds nobody
+CLOSING_GRACE = 0.25  # s of listening after a stop, for publications still in flight
 
 
 class Message(NamedTuple):
@@ -119,13 +128,15 @@ class Recorder:
                 break
             alive = seen
             time.sleep(SETTLE_ROUND)
-        alive = sorted(seen)
-        if not self.fetcher.wait_fetched(alive, ready_timeout):
-            log.warning("not all of %s answered with their TDs within %.0f s", alive, ready_timeout)
-        return alive
+        names = sorted(seen)
+        if not self.fetcher.wait_fetched(names, ready_timeout):
+            log.warning("not all of %s answered with their TDs within %.0f s", names, ready_timeout)
+        return names
 
     def close(self) -> None:
-        """Stop listening, write what is queued, close the file."""
+        """Stop listening, write what is queued, close the file. Publications still on their way
+        when the stop came (a value put just before a Ctrl-C of the whole lab) get a moment to arrive."""
+        time.sleep(CLOSING_GRACE)
         if self._directory is not None:
             self._directory.close()
         if self._sub is not None:
@@ -387,12 +398,14 @@ class _Writer(threading.Thread):
             self.send_layout()
             return True
         if message.kind == "robot":
+            assert isinstance(message.payload, RobotFiles)
             problems = self.robots.draw_robot(message.payload)
             self.stamp(message)
             self.log_entries([e for p in problems for e in mapping.notice_entries(p)])
             self.send_layout()
             return True
         if message.kind == "workspace":
+            assert isinstance(message.payload, Workspace)
             entries = self.robots.draw_workspace(message.payload)
             self.stamp(message)
             self.log_entries(entries)
@@ -431,7 +444,7 @@ class _Writer(threading.Thread):
         unknown Thing or affordance, or one that breaks its schema, is dropped, counted, logged once."""
         affordance = td.affordance(kind, name) if td is not None else None  # type: ignore[arg-type]
         why = "no TD for it" if affordance is None else None
-        if why is None:
+        if affordance is not None:
             schema = affordance if kind == "properties" else affordance.data
             try:
                 if value is not None or kind == "properties":
@@ -462,12 +475,12 @@ class _Writer(threading.Thread):
                 self.robots.set_td(parsed.thing, td)
             return mapping.td_entries(parsed.thing, td)
         value = msgspec.json.decode(message.payload) if message.payload else None
-        td = self.tds.get(parsed.thing)
-        if parsed.kind in ("properties", "events") and not self._allowed(td, parsed.thing, parsed.kind,
+        known = self.tds.get(parsed.thing)
+        if parsed.kind in ("properties", "events") and not self._allowed(known, parsed.thing, parsed.kind,
                                                                          parsed.name, value):
             return []
         if parsed.kind == "properties":
-            schema = td.properties.get(parsed.name) if td else None
+            schema = known.properties.get(parsed.name) if known else None
             return mapping.property_entries(parsed.thing, parsed.name, value, schema)
         if parsed.kind == "events":
             return mapping.event_entries(parsed.thing, parsed.name, value)

@@ -175,7 +175,8 @@ class Colour:
 
     @property
     def rgb8(self) -> tuple[int, int, int]:
-        return tuple(round(min(max(self.channels[c] / self.scale, 0.0), 1.0) * 255) for c in "rgb")
+        r, g, b = (round(min(max(self.channels[c] / self.scale, 0.0), 1.0) * 255) for c in "rgb")
+        return r, g, b
 
 
 def _colour(value: Any, schema: DataSchema | None) -> Colour | None:
@@ -184,7 +185,9 @@ def _colour(value: Any, schema: DataSchema | None) -> Colour | None:
         if len(value) not in (3, 4) or not all(_is_number(v) for v in value):
             return None
         channels = dict(zip("rgba", (float(v) for v in value)))
-        maxima = [schema.items.maximum] if schema is not None and schema.items is not None else []
+        items = schema.items if schema is not None else None
+        maxima = ([i.maximum for i in items] if isinstance(items, list)  # a tuple schema: one per channel
+                  else [items.maximum] if items is not None else [])
     elif isinstance(value, dict):
         channels = {_CHANNEL_ALIASES[k.lower()]: float(v) for k, v in value.items()
                     if k.lower() in _CHANNEL_ALIASES and _is_number(v)}

@@ -31,15 +31,17 @@ import io
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 import msgspec
 import numpy as np
 import rerun as rr
 
+from twinmesh.messages.scene import MODEL_REL, TWIN_FILE, TWIN_REL, Pose, TwinDescription
 from twinmesh.recorder.mapping import Entry
 from twinmesh.recorder.scene import BATCH_AGE, BATCH_ROWS, WORLD, Robot, SampleBatch, SceneDrawer, thing_robot_path
-from twinmesh.messages.scene import MODEL_REL, TWIN_FILE, TWIN_REL, Pose, TwinDescription
+from twinmesh.robot.model import ROBOTS_DIR
 from twinmesh.wot.td import ThingDescription
 
 JOINTS_PROPERTY = "getJointposition"
@@ -58,6 +60,17 @@ _REVOLUTE, _PRISMATIC = _UNITS["deg"], _UNITS["mm"]  # SPEC §4's units when a T
 
 
 # --- what a robot Thing's TD and files say ---------------------------------------------------------
+def urdf_dir(reference: str) -> Path | None:
+    """The folder of a twin's URDF on this machine (`urdf` of twin.json: a path, a name under the
+    shipped models, or a pybullet_data path), where its meshes are looked for; None if not here."""
+    import pybullet_data
+
+    for path in (Path(reference), ROBOTS_DIR / reference, Path(pybullet_data.getDataPath()) / reference):
+        if path.is_file():
+            return path.resolve().parent
+    return None
+
+
 def link_file(td: ThingDescription, rel: str) -> str | None:
     """The file name a TD link points at (`files/points.csv`, `zenoh:.../files/points.csv`, a URL)."""
     for link in td.links:
@@ -249,10 +262,11 @@ class RobotDrawer:
             t.robot = None
         elif host is None and t.files is not None and (t.robot is None or redraw):
             try:
-                robot = Robot.load(name, t.files.urdf, thing_robot_path(name, "model"))
+                robot = Robot.load(name, t.files.urdf, thing_robot_path(name, "model"), urdf_dir(t.files.twin.urdf))
             except Exception as e:  # a bad URDF: the joint series and the log still record
                 problems.append(f"cannot draw robot {name} from {t.files.twin.urdf_file}: {e}")
             else:
+                problems += [f"robot {name}: {m}" for m in robot.missing]
                 if not self._world_logged:
                     self.rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
                     self._world_logged = True
@@ -279,7 +293,8 @@ class RobotDrawer:
         free, colliding = ws.points[~ws.colliding], ws.points[ws.colliding]
         for part, points, colour in (("free", free, FREE_COLOUR), ("colliding", colliding, COLLIDING_COLOUR)):
             self.rec.log(thing_robot_path(name, "workspace", "points", part),
-                         rr.Points3D(points, colors=[colour], radii=[POINT_RADIUS]), static=True)
+                         rr.Points3D(points, colors=[colour], radii=[POINT_RADIUS]),  # type: ignore[arg-type]
+                         static=True)
         self.rec.log(thing_robot_path(name, "workspace", "hull"),
                      rr.Mesh3D(vertex_positions=ws.vertices, triangle_indices=ws.triangles,
                                vertex_normals=ws.normals, albedo_factor=HULL_COLOUR), static=True)

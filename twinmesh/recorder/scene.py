@@ -40,9 +40,11 @@ import numpy as np
 import rerun as rr
 from rerun.urdf import UrdfJoint, UrdfTree
 
+from twinmesh.messages.scene import Body, Pose, Poses, RobotModel, SceneDescription
 from twinmesh.recorder import mapping
 from twinmesh.recorder.mapping import Entry, entity_path
-from twinmesh.messages.scene import Body, Pose, Poses, RobotModel, SceneDescription
+from twinmesh.robot.model import ROBOTS_DIR
+from twinmesh.robot.resources import with_absolute_meshes
 
 WORLD = "world"
 ROBOTS = "robots"  # robot Things (twinmesh.recorder.robots)
@@ -92,16 +94,20 @@ class Robot:
     tree: UrdfTree
     joints: dict[str, UrdfJoint]
     base_frame: str
+    missing: list[str]  # mesh files that could not be found: those links are drawn as frames only
 
     @classmethod
-    def load(cls, name: str, urdf: str, root: str) -> "Robot":
+    def load(cls, name: str, urdf: str, root: str, urdf_dir: Path | None = ROBOTS_DIR) -> "Robot":
+        """`urdf_dir`: where the URDF lives on this machine, so that its meshes (`package://`, relative)
+        are found; the text itself may have come over the mesh."""
+        urdf, missing = with_absolute_meshes(urdf, urdf_dir)
         with tempfile.TemporaryDirectory(prefix="twinmesh-urdf-") as tmp:
             path = Path(tmp) / f"{name}.urdf"
             path.write_text(urdf)
             tree = UrdfTree.from_file_path(path, None, frame_prefix=f"{name}/",
                                            static_transform_entity_path=f"{root}/tf_static")
         joints = {j.name: j for j in tree.joints() if j.joint_type != "fixed"}
-        return cls(name, root, tree, joints, f"{name}/{tree.root_link().name}")
+        return cls(name, root, tree, joints, f"{name}/{tree.root_link().name}", missing)
 
     def draw(self, rec, base: Pose) -> None:
         """Its geometry and zero-pose joints (static), primitives solid, the base placed in the scene frame."""
@@ -224,6 +230,7 @@ class SceneDrawer:
     def _draw_body(self, body: Body, wall: float, seq: int) -> None:
         path = body_path(body.name)
         color = [round(min(max(c, 0.0), 1.0) * 255) for c in (*body.color, body.opacity)]
+        shape: rr.Boxes3D | rr.Cylinders3D | rr.Ellipsoids3D
         if body.shape == "box":
             shape = rr.Boxes3D(half_sizes=[[s / 2 for s in body.size]], colors=[color], fill_mode="solid")
         elif body.shape == "cylinder":
@@ -235,7 +242,8 @@ class SceneDrawer:
         if body.moving:  # a static pose would shadow the poses to come: log it as the first of them
             self._batch_pose(body.name, body.pose, wall, seq)
         else:
-            self.rec.log(path, rr.Transform3D(translation=body.pose.p, quaternion=body.pose.q), static=True)
+            placement = rr.Transform3D(translation=body.pose.p, quaternion=rr.Quaternion(xyzw=body.pose.q))
+            self.rec.log(path, placement, static=True)
         self.bodies[body.name] = body
 
     # --- poses (over time) -----------------------------------------------------------------
@@ -322,8 +330,9 @@ def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing
     contents = [f"+ /{WORLD}/robots/**", f"+ /{WORLD}/bodies/**", f"+ /{ROBOTS}/**"]
     hidden = {"/" + thing_robot_path(r, "workspace"): rrb.EntityBehavior(visible=False) for r in thing_robots}
     eye = _eye(bases, 2.5 if thing_robots else 1.0)  # a UR10's workspace is 2.6 m across
-    lab = rrb.Spatial3DView(origin=f"/{WORLD}", name=scene.name if scene is not None else "lab",
-                            contents=contents, overrides=hidden, eye_controls=eye)
+    lab: rrb.Spatial3DView | rrb.Tabs = rrb.Spatial3DView(
+        origin=f"/{WORLD}", name=scene.name if scene is not None else "lab", contents=contents,
+        overrides=hidden, eye_controls=eye)  # type: ignore[arg-type]  # rerun's Mapping is invariant in its key
     if thing_robots:
         lab = rrb.Tabs(lab, rrb.Spatial3DView(origin=f"/{WORLD}", name="workspaces", contents=contents,
                                               eye_controls=eye))
@@ -345,12 +354,13 @@ def _eye(bases: list, least: float = 1.0):
     """A camera in front of and above the robots, far enough to see them all (`least` from one)."""
     import rerun.blueprint as rrb
 
-    bases = np.array(bases or [(0.0, 0.0, 0.0)])
-    target = bases.mean(axis=0)
-    reach = max(least, 1.6 * float(np.ptp(bases, axis=0).max()))
+    at = np.array(bases or [(0.0, 0.0, 0.0)])
+    target = at.mean(axis=0)
+    reach = max(least, 1.6 * float(np.ptp(at, axis=0).max()))
     return rrb.EyeControls3D(position=target + reach * np.array([-0.35, -1.0, 0.6]), look_target=target,
                              eye_up=(0.0, 0.0, 1.0))
 
 
 def _placement(pose: Pose, child_frame: str) -> rr.Transform3D:
-    return rr.Transform3D(translation=pose.p, quaternion=pose.q, parent_frame=SCENE_FRAME, child_frame=child_frame)
+    return rr.Transform3D(translation=pose.p, quaternion=rr.Quaternion(xyzw=pose.q), parent_frame=SCENE_FRAME,
+                          child_frame=child_frame)

@@ -168,7 +168,10 @@ def fit_calibration(twin: np.ndarray, real: np.ndarray, model: Model = "auto") -
     m = np.array(next(f for f in fits if f.method == used).matrix)
     if abs(np.linalg.det(m[:, :3])) < 1e-9:
         raise CalibrationError(f"the {used} map is singular (a zero scale): the real frame would be flat")
-    return Calibration([tuple(map(float, p)) for p in twin], [tuple(map(float, p)) for p in real], fits, used)
+    def point(p) -> tuple[float, float, float]:
+        return float(p[0]), float(p[1]), float(p[2])
+
+    return Calibration([point(p) for p in twin], [point(p) for p in real], fits, used)
 
 
 def load_calibration(path: str | Path, model: Model = "auto") -> Calibration:

@@ -65,7 +65,7 @@ class CollisionWorld:
         """(N, n) main-joint values -> (N, m) values of every driven pybullet joint."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         source = q[:, self._main_cols]
-        if self._passive_mask.any():
+        if self._passive_mask.any() and self.robot.passive is not None:
             passive = np.atleast_2d(self.robot.passive(q))
             source = np.where(self._passive_mask, passive[:, self._passive_cols], source)
         return source * self._mult + self._offset

@@ -79,10 +79,14 @@ class ForwardKinematics:
         self._const = np.array(const, dtype=float)
         self._uses_passive = bool(np.any(self._a_pass))
 
+    def _passive(self, q: np.ndarray) -> np.ndarray:
+        assert self.robot.passive is not None, "only called when the chain uses passive joints"
+        return self.robot.passive(q)
+
     def _chain_values(self, q: np.ndarray) -> np.ndarray:
         v = q @ self._a_main + self._const
         if self._uses_passive:
-            v = v + np.atleast_2d(self.robot.passive(q)) @ self._a_pass
+            v = v + np.atleast_2d(self._passive(q)) @ self._a_pass
         return v
 
     def _chain_derivative(self, q: np.ndarray) -> np.ndarray:
@@ -92,8 +96,8 @@ class ForwardKinematics:
             return d
         eps = 1e-6
         steps = np.eye(self.n) * eps
-        plus = np.stack([self.robot.passive(q + s) for s in steps], axis=-1)
-        minus = np.stack([self.robot.passive(q - s) for s in steps], axis=-1)
+        plus = np.stack([self._passive(q + s) for s in steps], axis=-1)
+        minus = np.stack([self._passive(q - s) for s in steps], axis=-1)
         dp = (plus - minus) / (2 * eps)                                      # (N, n_passive, n)
         return d + np.einsum("pm,Npn->Nmn", self._a_pass, dp)
 

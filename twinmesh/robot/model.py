@@ -214,8 +214,19 @@ def resolve_urdf(urdf: str | Path) -> Path:
     raise RobotError(f"{urdf}: URDF file not found (looked here, in {ROBOTS_DIR} and in pybullet_data)")
 
 
-def _floats(text: str | None, default: tuple[float, ...]) -> tuple[float, ...]:
-    return tuple(float(v) for v in text.split()) if text else default
+def _floats(text: str | None, default: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Three numbers of a URDF attribute (xyz, rpy, axis)."""
+    if not text:
+        return default
+    x, y, z = (float(v) for v in text.split())
+    return x, y, z
+
+
+def _child(el: ET.Element, tag: str) -> ET.Element:
+    found = el.find(tag)
+    if found is None:
+        raise KeyError(f"no <{tag}>")
+    return found
 
 
 def _parse_urdf(path: Path) -> tuple[str, str, dict[str, UrdfJoint]]:
@@ -233,7 +244,7 @@ def _parse_urdf(path: Path) -> tuple[str, str, dict[str, UrdfJoint]]:
             lim = limit.attrib if limit is not None else {}
             joints[el.attrib["name"]] = UrdfJoint(
                 name=el.attrib["name"], type=el.attrib["type"],
-                parent=el.find("parent").attrib["link"], child=el.find("child").attrib["link"],
+                parent=_child(el, "parent").attrib["link"], child=_child(el, "child").attrib["link"],
                 xyz=_floats(origin.get("xyz") if origin is not None else None, (0.0, 0.0, 0.0)),
                 rpy=_floats(origin.get("rpy") if origin is not None else None, (0.0, 0.0, 0.0)),
                 axis=_floats(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0)),
@@ -244,7 +255,7 @@ def _parse_urdf(path: Path) -> tuple[str, str, dict[str, UrdfJoint]]:
                 if mimic is not None else None)
     except (KeyError, AttributeError, ValueError) as exc:
         raise RobotError(f"{path}: malformed <joint> ({type(exc).__name__}: {exc})") from None
-    links = [el.attrib.get("name") for el in root_el.findall("link")]
+    links = [el.attrib["name"] for el in root_el.findall("link") if "name" in el.attrib]
     roots = [n for n in links if n not in {j.child for j in joints.values()}]
     if len(roots) != 1:
         raise RobotError(f"{path}: expected one root link, found {roots or 'none'}")

@@ -160,7 +160,7 @@ def _ompl_paths(checker: PathChecker, start: np.ndarray, goals: Sequence[np.ndar
         bounds.setHigh(i, float(highs[i]))
     space.setBounds(bounds)
     setup = og.SimpleSetup(space)
-    setup.setStateValidityChecker(lambda s: checker.free([s[i] for i in range(n)]))
+    setup.setStateValidityChecker(lambda s: checker.free(np.array([s[i] for i in range(n)])))
     si = setup.getSpaceInformation()
     # the planner checks motions every `fraction` of the space's extent; a joint step of size d
     # moves no point more than d * |radii| (Cauchy-Schwarz), so this keeps its checks near resolution_m

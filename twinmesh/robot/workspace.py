@@ -106,7 +106,9 @@ def _compact(points: np.ndarray, faces: np.ndarray) -> trimesh.Trimesh:
 
 def write_stl(solid: Solid, path: Path) -> None:
     """Binary STL with facet normals."""
-    path.write_bytes(solid.mesh.export(file_type="stl"))
+    data = solid.mesh.export(file_type="stl")
+    assert isinstance(data, bytes), "trimesh exports STL as bytes"
+    path.write_bytes(data)
 
 
 def read_points_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:

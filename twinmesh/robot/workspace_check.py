@@ -19,8 +19,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from twinmesh.robot.workspace import read_points_csv
-from twinmesh.robot.workspace import convex_hull, qhull
+from twinmesh.robot.workspace import convex_hull, qhull, read_points_csv
 
 DEFAULT_K = 20
 DEFAULT_RADIUS_MM = 100.0
@@ -65,7 +64,7 @@ class Workspace:
 
     def contains(self, points: np.ndarray, eps: float = INSIDE_EPS_MM) -> np.ndarray:
         """(N, 3) -> (N,) bool: inside the hull (on it within eps counts as inside)."""
-        return (self.plane_distances(points) <= eps).all(axis=1)
+        return np.asarray((self.plane_distances(points) <= eps).all(axis=1))
 
     def margin(self, point: np.ndarray) -> float:
         """Signed distance to the hull surface: > 0 inside, < 0 outside (exact, mm)."""

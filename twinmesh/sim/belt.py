@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import math
 import threading
-from typing import Sequence
 
 import numpy as np
 import pybullet as pb
 
+from twinmesh.sim.vec import Vec
 from twinmesh.sim.world import Snapshot, World, static_box
 from twinmesh.wot.problem import BadInput
 
@@ -36,7 +36,7 @@ class Belt:
     surface); `top_z` is the height of the surface.
     """
 
-    def __init__(self, world: World, name: str, back_end: Sequence[float], front_end: Sequence[float],
+    def __init__(self, world: World, name: str, back_end: Vec, front_end: Vec,
                  top_z: float, width: float = 0.06, base_z: float | None = None, stop_margin: float = 0.0145):
         self.world, self.name = world, name
         self.back_end = np.array(back_end[:2], dtype=float)
@@ -95,7 +95,7 @@ class Belt:
         with self._lock:
             self._direction, self._speed = 0, DEFAULT_SPEED
 
-    def along(self, point: Sequence[float]) -> float:
+    def along(self, point: Vec) -> float:
         """Distance (m) of a world point from the back end, measured along the belt."""
         return float(np.dot(np.asarray(point[:2]) - self.back_end, self.axis))
 

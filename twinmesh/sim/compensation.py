@@ -19,6 +19,7 @@ import numpy as np
 import pybullet as pb
 
 from twinmesh.robot.model import ROBOTS_DIR
+from twinmesh.sim.vec import Vec
 
 if TYPE_CHECKING:
     from twinmesh.sim.world import Pose, World
@@ -61,7 +62,7 @@ class KinematicArm:
     mutated, so other threads may read it.
     """
 
-    def __init__(self, client: int, urdf: str, base_pos: Sequence[float], base_orn: Sequence[float],
+    def __init__(self, client: int, urdf: str, base_pos: Vec, base_orn: Vec,
                  main: Sequence[str], passive: Sequence[str] = (),
                  compensation: Callable[[np.ndarray], np.ndarray] | None = None, world: World | None = None):
         self.client = client
@@ -85,7 +86,7 @@ class KinematicArm:
         if world is not None:
             world.add_post_step(self.hold)
 
-    def apply(self, q: Sequence[float]) -> None:
+    def apply(self, q: Vec) -> None:
         """Set the main joints (and the passive ones from them). Stepping thread."""
         q = np.asarray(q, dtype=float).copy()
         self.q = q
@@ -113,7 +114,7 @@ class KinematicArm:
     def link_pose(self, link: str) -> Pose:
         st = pb.getLinkState(self.body, self.link_index[link], computeForwardKinematics=True,
                              physicsClientId=self.client)
-        return tuple(st[4]), tuple(st[5])  # type: ignore[return-value]
+        return tuple(st[4]), tuple(st[5])
 
     def joint_values(self) -> dict[str, float]:
         """Main, passive and extra joint values by name (what a recorder animates)."""

@@ -16,12 +16,13 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 import pybullet as pb
 
 from twinmesh.sim.compensation import DOBOT_MAIN_JOINTS, DOBOT_PASSIVE_JOINTS, DOBOT_URDF, KinematicArm, dobot_passive
+from twinmesh.sim.vec import Vec
 from twinmesh.sim.world import PEAK_SPEED, Interpolation, Snapshot, World, attach, body_pose, place
 from twinmesh.wot.problem import Refused
 
@@ -65,7 +66,7 @@ class Cube:
     size: float = CUBE_SIZE
 
 
-def make_cube(client: int, name: str, color: Sequence[float], position: Sequence[float],
+def make_cube(client: int, name: str, color: Vec, position: Vec,
               size: float = CUBE_SIZE, mass: float = 0.02) -> Cube:
     half = [size / 2] * 3
     col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=client)
@@ -74,7 +75,7 @@ def make_cube(client: int, name: str, color: Sequence[float], position: Sequence
     # frictionAnchor: without it a resting cube creeps (~0.7 mm and 0.7 deg per simulated minute)
     pb.changeDynamics(body, -1, lateralFriction=0.6, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
                       frictionAnchor=1, physicsClientId=client)
-    return Cube(name, tuple(color), body, size)  # type: ignore[arg-type]
+    return Cube(name, tuple(color), body, size)
 
 
 @dataclass
@@ -95,7 +96,7 @@ class Warehouse:
 class Slide:
     """Bodies slid kinematically from where they are to target positions (a warehouse push)."""
 
-    def __init__(self, client: int, targets: dict[int, Sequence[float]], duration: float):
+    def __init__(self, client: int, targets: dict[int, Vec], duration: float):
         self._client, self._targets, self._duration = client, targets, duration
         self._start: dict[int, np.ndarray] = {}
         self._t = 0.0
@@ -141,8 +142,8 @@ def dobot_ik(x: float, y: float, z: float) -> np.ndarray:
 class Dobot:
     """The Dobot's behaviour; one action at a time (others wait for `lock`)."""
 
-    def __init__(self, world: World, track_start: Sequence[float], track_axis: Sequence[float], yaw: float,
-                 warehouse: Warehouse, drop_point: Sequence[float], pickup_point: Sequence[float],
+    def __init__(self, world: World, track_start: Vec, track_axis: Vec, yaw: float,
+                 warehouse: Warehouse, drop_point: Vec, pickup_point: Vec,
                  cubes: Callable[[], list[Cube]], travel_z: float, name: str = "dobot",
                  pickup_radius: float = 0.025):
         self.world, self.name = world, name
@@ -191,7 +192,7 @@ class Dobot:
             pick, put = self._plan(cube, self.warehouse.slots[0]), self._plan(cube, self.drop_point, 0.001)
             self._pick(cube, pick)
             self.warehouse.queue.pop(0)
-            queue = {c.body: self.warehouse.slots[i] for i, c in enumerate(self.warehouse.queue)}
+            queue: dict[int, Vec] = {c.body: self.warehouse.slots[i] for i, c in enumerate(self.warehouse.queue)}
             self.world.play(Slide(self.world.client, queue, PUSH_TIME)).result()
             self._put(put)
             return cube
@@ -224,7 +225,7 @@ class Dobot:
     def _base(self, l_mm: float) -> np.ndarray:
         return self.track_start + self.track_axis * (l_mm / 1000.0)
 
-    def _solve(self, tip: Sequence[float]) -> tuple[float, np.ndarray]:
+    def _solve(self, tip: Vec) -> tuple[float, np.ndarray]:
         """Track position (mm) that puts a world point straight ahead, and the arm joints to reach it."""
         tip = np.asarray(tip, float)
         l_mm = float(np.clip(np.dot(tip - self.track_start, self.track_axis) * 1000.0, 0.0, TRACK_LENGTH))
@@ -247,7 +248,7 @@ class Dobot:
                                            physicsClientId=self.world.client)
         self.arm.apply(v[1:])
 
-    def _plan(self, cube: Cube, centre: Sequence[float], gap: float = 0.0) -> Plan:
+    def _plan(self, cube: Cube, centre: Vec, gap: float = 0.0) -> Plan:
         """(above, at) poses for the suction cup on top of a cube centred at `centre` (`gap` above that).
 
         Solved before anything moves, so an unreachable point is refused up front.

@@ -26,7 +26,7 @@ import math
 import threading
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import pybullet as pb
@@ -34,6 +34,7 @@ import pybullet as pb
 from twinmesh.robot.model import ROBOTS_DIR
 from twinmesh.sim.compensation import KinematicArm
 from twinmesh.sim.sensors import reading_of
+from twinmesh.sim.vec import Vec
 from twinmesh.sim.world import PEAK_SPEED, Interpolation, MotionCancelled, Snapshot, World
 from twinmesh.wot.problem import BadInput
 
@@ -98,7 +99,7 @@ class PanTilt:
     Thread-safe: one motion at a time; reads never wait for a motion.
     """
 
-    def __init__(self, world: World, name: str, position: Sequence[float], yaw_deg: float = 0.0,
+    def __init__(self, world: World, name: str, position: Vec, yaw_deg: float = 0.0,
                  names: Names | None = None):
         self.world, self.name = world, name
         self._names = names

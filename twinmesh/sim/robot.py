@@ -34,23 +34,24 @@ import math
 import threading
 import time
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Literal, Mapping
 
 import msgspec
 import numpy as np
 
-from twinmesh.sim.compensation import KinematicArm
-from twinmesh.sim.world import PEAK_SPEED, PathMotion, Snapshot, World
-from twinmesh.wot.problem import BadInput, Problem, Refused, Unavailable
 from twinmesh.messages.scene import Pose, TwinDescription
 from twinmesh.robot.calibration import Calibration
-from twinmesh.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM, Workspace
+from twinmesh.robot.collision import CollisionWorld
 from twinmesh.robot.ik import solve, solve_many
 from twinmesh.robot.kinematics import ForwardKinematics
 from twinmesh.robot.model import Robot
 from twinmesh.robot.planning import PLANNING_BUDGET_S, JointPath, NoPath, PathChecker, find_path
-from twinmesh.robot.collision import CollisionWorld
 from twinmesh.robot.surroundings import RobotPlacement, Scene, empty_scene
+from twinmesh.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM, Workspace
+from twinmesh.sim.compensation import KinematicArm
+from twinmesh.sim.vec import Vec
+from twinmesh.sim.world import PEAK_SPEED, PathMotion, Snapshot, World
+from twinmesh.wot.problem import BadInput, Problem, Refused, Unavailable
 
 IK_SEEDS = 24       # IK runs per Cartesian target: from the current configuration and from random starts
 IK_RESTARTS = 20    # random restarts each run may take before it gives up
@@ -99,7 +100,8 @@ class Base:
 def placed(scene: Scene | None, base: Base) -> Scene:
     """The scene with the robot standing at `base` (a scene's own `robot` placement is replaced)."""
     scene = scene or empty_scene()
-    return msgspec.structs.replace(scene, robot=RobotPlacement(position=tuple(base.position), yaw=base.yaw))
+    x, y, z = base.position
+    return msgspec.structs.replace(scene, robot=RobotPlacement(position=(x, y, z), yaw=base.yaw))
 
 
 def workspace_from_csv(data: bytes) -> Workspace:
@@ -121,7 +123,7 @@ class TdFrame:
             self._a, self._t, self._a_inv = m[:, :3], m[:, 3], np.linalg.inv(m[:, :3])
 
     @property
-    def name(self) -> str:
+    def name(self) -> Literal["twin", "real"]:
         return "twin" if self.calibration is None else "real"
 
     def from_base(self, base_mm: np.ndarray) -> np.ndarray:
@@ -171,7 +173,7 @@ class RobotTwin:
     def __init__(self, world: World, robot: Robot, name: str, base: Base = Base(), scene: Scene | None = None, *,
                  calibration: Calibration | None = None,
                  max_collision_probability: float | None = None, k: int = DEFAULT_K,
-                 radius_mm: float = DEFAULT_RADIUS_MM, home: Sequence[float] | None = None,
+                 radius_mm: float = DEFAULT_RADIUS_MM, home: Vec | None = None,
                  workspace_wait: float = 0.0, planning_budget: float = PLANNING_BUDGET_S):
         if max_collision_probability is not None and not 0.0 <= max_collision_probability <= 1.0:
             raise ValueError("max_collision_probability must be within 0..1")
@@ -198,7 +200,7 @@ class RobotTwin:
         self._mimic = [n for n in robot.drives() if n not in {*self._main, *robot.passive_names}]
         self._turning = [i for i, j in enumerate(robot.joints)  # revolute joints with more than a turn of range
                          if j.type != "prismatic" and j.upper - j.lower > 2 * math.pi + 1e-9]
-        q0 = np.clip(np.zeros(len(robot.joints)) if home is None else robot.from_user_units(home),
+        q0 = np.clip(np.zeros(len(robot.joints)) if home is None else robot.from_user_units(np.asarray(home)),
                      robot.lows(), robot.highs())
         if home is None:
             q0 = self._free_home(q0)
@@ -333,7 +335,7 @@ class RobotTwin:
             frame=self.frame.name, version=self.version)
 
     # --- moves ----------------------------------------------------------------------------------
-    def move_to_joints(self, joints: Mapping[str, float] | Sequence[float]) -> MovePlan:
+    def move_to_joints(self, joints: Mapping[str, float] | Vec) -> MovePlan:
         """Move to joint values (deg / mm, by name or in joint order) along a collision-free path;
         returns when the motion is over."""
         goal = self.joint_goal(joints)
@@ -342,7 +344,7 @@ class RobotTwin:
             self._play(plan)
         return plan
 
-    def move_to_cartesian(self, target_mm: Sequence[float]) -> MovePlan:
+    def move_to_cartesian(self, target_mm: Vec) -> MovePlan:
         """Move the end effector to `target_mm` (TD frame) along a collision-free path; refused (nothing
         moves) unless one is found."""
         target = np.asarray(target_mm, dtype=float).reshape(3)
@@ -352,8 +354,8 @@ class RobotTwin:
             self._play(plan)
         return plan
 
-    def plan_move(self, joints: Mapping[str, float] | Sequence[float] | None = None,
-                  target_mm: Sequence[float] | None = None) -> MovePlan:
+    def plan_move(self, joints: Mapping[str, float] | Vec | None = None,
+                  target_mm: Vec | None = None) -> MovePlan:
         """The answer a move would give, from where the robot is now, without moving (a dry run)."""
         if (joints is None) == (target_mm is None):
             raise BadInput(f"{self.name}: give either a Cartesian target (x, y, z) or joint values, not both")
@@ -373,7 +375,7 @@ class RobotTwin:
         motion.stop()
         return True
 
-    def joint_goal(self, joints: Mapping[str, float] | Sequence[float]) -> np.ndarray:
+    def joint_goal(self, joints: Mapping[str, float] | Vec) -> np.ndarray:
         """Joint values in TD units (by name or in order) -> SI, within the limits, or BadInput."""
         if isinstance(joints, Mapping):
             missing = [n for n in self._main if n not in joints]

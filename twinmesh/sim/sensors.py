@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable
 
 import pybullet as pb
 
+from twinmesh.sim.vec import Vec
 from twinmesh.sim.world import Snapshot, World, static_box
 
 RAY_MASK = 1  # pybullet's default collision group; robot links are in none
@@ -30,7 +31,7 @@ class InfraredSensor:
     seen) must not flicker when a gripper takes hold of it.
     """
 
-    def __init__(self, world: World, name: str, ray_from: Sequence[float], ray_to: Sequence[float],
+    def __init__(self, world: World, name: str, ray_from: Vec, ray_to: Vec,
                  release: float = 0.1):
         self.world, self.name = world, name
         self.ray_from, self.ray_to = list(ray_from), list(ray_to)
@@ -92,7 +93,7 @@ NO_OBJECT = ColorReading([0, 0, 0], 100.0, 6500.0)
 class ColorSensor:
     """Looks along a short ray (up, from below the check point) and reports what it sees."""
 
-    def __init__(self, world: World, name: str, origin: Sequence[float], reach: float = 0.035):
+    def __init__(self, world: World, name: str, origin: Vec, reach: float = 0.035):
         self.world, self.name = world, name
         self.ray_from = [origin[0], origin[1], origin[2] + 0.001]
         self.ray_to = [origin[0], origin[1], origin[2] + reach]
@@ -133,7 +134,7 @@ class ColorSensor:
         snap.states[self.name] = {"color": r.color, "lux": r.lux, "temperature": r.temperature}
 
 
-def reading_of(rgb: Sequence[float]) -> ColorReading:
+def reading_of(rgb: Vec) -> ColorReading:
     """What the sensor reports for a surface of sRGB colour `rgb` (each 0..1)."""
     r, g, b = (min(max(float(v), 0.0), 1.0) for v in rgb)
     lin = [v / 12.92 if v <= 0.04045 else ((v + 0.055) / 1.055) ** 2.4 for v in (r, g, b)]

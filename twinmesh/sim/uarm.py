@@ -18,12 +18,13 @@ import csv
 import math
 import threading
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 import pybullet as pb
 
 from twinmesh.sim.compensation import UARM_MAIN_JOINTS, UARM_PASSIVE_JOINTS, UARM_URDF, KinematicArm, uarm_passive
+from twinmesh.sim.vec import Vec
 from twinmesh.sim.world import PEAK_SPEED, Interpolation, Snapshot, World, attach
 from twinmesh.wot.problem import Refused
 
@@ -94,7 +95,7 @@ def real_ik(x: float, y: float, z: float) -> np.ndarray:
     return np.array([c, a, b, -c])
 
 
-def check_range(point: dict[str, float], ranges: dict[str, tuple[int, int]], what: str) -> None:
+def check_range(point: Mapping[str, float], ranges: dict[str, tuple[int, int]], what: str) -> None:
     for axis, (lo, hi) in ranges.items():
         v = point[axis]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
@@ -104,7 +105,7 @@ def check_range(point: dict[str, float], ranges: dict[str, tuple[int, int]], wha
 class Uarm:
     """The uArm's behaviour. Actions block until the motion is over; one action at a time."""
 
-    def __init__(self, world: World, base_position: Sequence[float], graspable: Callable[[], Iterable[int]],
+    def __init__(self, world: World, base_position: Vec, graspable: Callable[[], Iterable[int]],
                  home: Sequence[int] = DEFAULT_HOME, name: str = "uarm"):
         self.world, self.name = world, name
         self.base_position = np.asarray(base_position, dtype=float)
@@ -138,7 +139,7 @@ class Uarm:
 
     @home_loc.setter
     def home_loc(self, value: dict[str, int]) -> None:
-        point = {k: value.get(k) for k in "xyz"}
+        point = {k: value[k] for k in "xyz"}  # the schema requires x, y and z
         check_range(point, HOME_RANGE, "homeLoc")
         real_ik(*(point[k] for k in "xyz"))  # refuse a home the arm cannot reach
         self._home = {k: point[k] for k in "xyz"}
@@ -148,10 +149,10 @@ class Uarm:
         """The body id of the gripped cube, if any."""
         return self._held
 
-    def to_world(self, point_mm: Sequence[float]) -> np.ndarray:
+    def to_world(self, point_mm: Vec) -> np.ndarray:
         return self.base_position + np.asarray(point_mm, dtype=float) / 1000.0
 
-    def to_real(self, point_world: Sequence[float]) -> np.ndarray:
+    def to_real(self, point_world: Vec) -> np.ndarray:
         return (np.asarray(point_world, dtype=float) - self.base_position) * 1000.0
 
     # --- actions --------------------------------------------------------------------------------
@@ -203,7 +204,7 @@ class Uarm:
             self._move((x, new_y, z), GOTO_SPEED)
             return {"y": round(new_y)}
 
-    def _move(self, target: Sequence[float], speed: float) -> None:
+    def _move(self, target: Vec, speed: float) -> None:
         goal = real_ik(*target)
         with self.lock:
             start = self.arm.q
@@ -269,14 +270,14 @@ class Uarm:
 
 
 # --- twin-to-real calibration pairs ---------------------------------------------------------------
-def calibration_pairs(base_position: Sequence[float], n: int = 40, seed: int = 7) -> list[tuple[float, ...]]:
+def calibration_pairs(base_position: Vec, n: int = 40, seed: int = 7) -> list[tuple[float, ...]]:
     """(twin x,y,z [m, scene frame], real x,y,z [mm]) for `n` reachable configurations.
 
     The twin side is the tool link as pybullet places it with the uArm at `base_position`; the
     real side is the firmware's forward kinematics of the same motor angles.
     """
     rng = np.random.default_rng(seed)
-    qs = []
+    qs: list[np.ndarray] = []
     while len(qs) < n:
         target = [rng.uniform(*GOTO_RANGE[k]) for k in "xyz"]
         try:
@@ -297,7 +298,7 @@ def calibration_pairs(base_position: Sequence[float], n: int = 40, seed: int = 7
         pb.disconnect(client)
 
 
-def write_calibration_csv(path: Path, base_position: Sequence[float], n: int = 40) -> None:
+def write_calibration_csv(path: Path, base_position: Vec, n: int = 40) -> None:
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["twin_x", "twin_y", "twin_z", "real_x", "real_y", "real_z"])

@@ -20,13 +20,14 @@ import threading
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, Sequence, TypeVar
+from typing import Any, Callable, Protocol, TypeVar
 
 import numpy as np
 import pybullet as pb
 
-from twinmesh.wot.problem import Unavailable
 from twinmesh.fabric.settings import MAX_SPEED, MIN_SPEED
+from twinmesh.sim.vec import Vec
+from twinmesh.wot.problem import Unavailable
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +74,7 @@ class Motion(Protocol):
 class Interpolation:
     """Values from `start` (read when the motion begins) to `goal` over `duration` s, eased in and out."""
 
-    def __init__(self, start: Callable[[], np.ndarray], goal: Sequence[float], duration: float,
+    def __init__(self, start: Callable[[], np.ndarray], goal: Vec, duration: float,
                  apply: Callable[[np.ndarray], None]):
         self._start_fn, self.goal, self.duration, self._apply = start, np.asarray(goal, float), duration, apply
         self._start: np.ndarray | None = None
@@ -94,7 +95,7 @@ class PathMotion:
     waypoint, so it never leaves the straight segments a planner checked), in the durations given.
     `stop()` halts it where it is at the next step; `stopped` then says so."""
 
-    def __init__(self, waypoints: np.ndarray, durations: Sequence[float], apply: Callable[[np.ndarray], None]):
+    def __init__(self, waypoints: np.ndarray, durations: Vec, apply: Callable[[np.ndarray], None]):
         self.waypoints, self.durations, self._apply = np.asarray(waypoints, float), list(durations), apply
         self._segment, self._t = 0, 0.0
         self.stopped = False
@@ -461,8 +462,8 @@ def attach(client: int, body: int, link: int, child: int, max_force: float = 50.
     return cid
 
 
-def static_box(client: int, half: Sequence[float], pos: Sequence[float], orn: Sequence[float] = (0, 0, 0, 1),
-               rgba: Sequence[float] = (0.6, 0.6, 0.6, 1), collide: bool = True) -> int:
+def static_box(client: int, half: Vec, pos: Vec, orn: Vec = (0, 0, 0, 1),
+               rgba: Vec = (0.6, 0.6, 0.6, 1), collide: bool = True) -> int:
     """A static box (mass 0), the building block of tables, belts and trays."""
     col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=list(half), physicsClientId=client) if collide else -1
     vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=list(half), rgbaColor=list(rgba), physicsClientId=client)
@@ -471,10 +472,10 @@ def static_box(client: int, half: Sequence[float], pos: Sequence[float], orn: Se
 
 def body_pose(client: int, body: int) -> Pose:
     pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=client)
-    return tuple(pos), tuple(orn)  # type: ignore[return-value]
+    return tuple(pos), tuple(orn)
 
 
-def place(client: int, body: int, pos: Sequence[float], orn: Sequence[float] = (0, 0, 0, 1)) -> None:
+def place(client: int, body: int, pos: Vec, orn: Vec = (0, 0, 0, 1)) -> None:
     """Teleport a body and stop it."""
     pb.resetBasePositionAndOrientation(body, list(pos), list(orn), physicsClientId=client)
     pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=client)

@@ -18,14 +18,15 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
 
+from twinmesh.robot.collision import CollisionWorld
 from twinmesh.robot.kinematics import ForwardKinematics
 from twinmesh.robot.model import Robot
 from twinmesh.robot.surroundings import Scene
-from twinmesh.robot.collision import CollisionWorld
 
 CHUNK = 1000
 
@@ -70,12 +71,13 @@ def default_workers() -> int:
 
 
 def sample_workspace(robot: Robot, scene: Scene, n: int, seed: int | None = 0, workers: int | None = None,
-                     progress: bool = False) -> Samples:
+                     progress: bool = False, on_progress: Callable[[float], None] | None = None) -> Samples:
     """Draw n configurations and find their end-effector positions and collisions.
 
     `workers=1` checks in this process (no start-up cost: small runs, tests); more use a spawn pool,
     which pickles the robot: its passive map, if any, must be a module-level function.
-    The progress bar goes to stderr and only shows when asked and stderr is a terminal.
+    The progress bar goes to stderr and only shows when asked and stderr is a terminal;
+    `on_progress(fraction)` is called after each chunk of configurations is checked.
     """
     if n < 1:
         raise ValueError("need at least one sample")
@@ -92,6 +94,8 @@ def sample_workspace(robot: Robot, scene: Scene, n: int, seed: int | None = 0, w
                 for chunk in chunks:
                     flags.append(world.colliding(chunk))
                     bar.update(len(chunk))
+                    if on_progress is not None:
+                        on_progress(sum(map(len, flags)) / n)  # a disabled bar counts nothing
             finally:
                 world.close()
         else:
@@ -103,6 +107,8 @@ def sample_workspace(robot: Robot, scene: Scene, n: int, seed: int | None = 0, w
                 for chunk, result in zip(chunks, pool.imap(_check_chunk, chunks)):
                     flags.append(result)
                     bar.update(len(chunk))
+                    if on_progress is not None:
+                        on_progress(sum(map(len, flags)) / n)  # a disabled bar counts nothing
     return Samples(q=q, positions=positions, collision=np.concatenate(flags))
 
 

@@ -10,8 +10,8 @@ import re
 
 import numpy as np
 
-from twinmesh.wot.td import JSON, ActionAffordance, DataSchema, Form, Link, PropertyAffordance, ThingDescription
 from twinmesh.robot.model import Robot
+from twinmesh.wot.td import JSON, ActionAffordance, DataSchema, Form, Link, PropertyAffordance, ThingDescription
 
 CONTEXT = ["https://www.w3.org/2019/wot/td/v1", "https://www.w3.org/2022/wot/td/v1.1"]
 ARTEFACTS = {  # file name -> (rel, media type)

@@ -13,11 +13,11 @@ import json
 from pathlib import Path
 from typing import Any, Callable
 
-from twinmesh.sim.pan_tilt import MAX_PAN_SPEED, REACH, ColorSeen, PanTilt
 from twinmesh.fabric.keys import Keys
-from twinmesh.fabric.state_publisher import StatePublisher
-from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 from twinmesh.fabric.server import ExposedThing
+from twinmesh.fabric.state_publisher import StatePublisher
+from twinmesh.sim.pan_tilt import MAX_PAN_SPEED, REACH, ColorSeen, PanTilt
+from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 
 TD = Path(__file__).parent / "tds" / "pan-tilt.json"
 MOVES = ("moveTo", "panTo", "tiltTo", "goHome", "stopMovement")  # answer when the motion is over

@@ -34,15 +34,15 @@ from typing import Any, Callable
 
 import msgspec
 
+from twinmesh.fabric.keys import Keys
+from twinmesh.fabric.server import ExposedThing
 from twinmesh.sim.belt import Belt
 from twinmesh.sim.dobot import Dobot
 from twinmesh.sim.layouts.platform import IotPlatform
 from twinmesh.sim.sensors import ColorSensor, InfraredSensor
 from twinmesh.sim.uarm import Uarm
-from twinmesh.fabric.keys import Keys
 from twinmesh.wot.problem import Refused
 from twinmesh.wot.td import ThingDescription, decode_td, thing_id
-from twinmesh.fabric.server import ExposedThing
 
 TDS = Path(__file__).parent / "tds"
 PLATFORM_DEVICES = ("dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2",

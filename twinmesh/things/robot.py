@@ -22,6 +22,7 @@ most `rate` times per wall second, and always once more with the final value bef
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import logging
 import re
@@ -34,12 +35,12 @@ from typing import TYPE_CHECKING, Any
 import msgspec
 
 from twinmesh.fabric.client import MeshClient
-from twinmesh.wot.problem import BadInput, Problem
-from twinmesh.messages.scene import MODEL_REL, TWIN_FILE, TWIN_REL, TwinDescription
+from twinmesh.fabric.server import ExposedThing
 from twinmesh.fabric.settings import MeshSettings
 from twinmesh.fabric.state_publisher import StatePublisher
+from twinmesh.messages.scene import MODEL_REL, TWIN_FILE, TWIN_REL, TwinDescription
+from twinmesh.wot.problem import BadInput, Problem
 from twinmesh.wot.td import ThingDescription, decode_td
-from twinmesh.fabric.server import ExposedThing
 
 if TYPE_CHECKING:  # pybullet loads with twinmesh.sim.robot: `twinmesh --help` need not wait for it
     from twinmesh.sim.robot import RobotTwin
@@ -157,7 +158,7 @@ class RobotThing:
         t.on_file(TWIN_FILE, lambda: msgspec.json.encode(self.description()), "application/json")
         t.on_file(path.name, lambda: self._urdf_bytes, URDF_TYPE)
         for name, (_, media) in ARTEFACTS.items():
-            t.on_file(name, lambda name=name: self._artefact(name), media)
+            t.on_file(name, functools.partial(self._artefact, name), media)
         self.publisher = StatePublisher(t, lambda: {"getJointposition": twin.joint_position(),
                                                     "getCartesianposition": twin.cartesian_position()}, rate)
         twin.on_state(self.publisher.changed)
@@ -273,17 +274,19 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
     `base` is (x, y, z [m], yaw [deg]) in the scene frame (default: the scene's robot placement);
     `speed` None runs the simulation as fast as possible.
     """
-    from twinmesh.sim.robot import WORKSPACE_WAIT, Base, RobotTwin
-    from twinmesh.sim.world import World
     from twinmesh.fabric.session import open_session
     from twinmesh.robot.calibration import load_calibration
     from twinmesh.robot.model import Robot
     from twinmesh.robot.surroundings import build_into, empty_scene, load_scene
+    from twinmesh.sim.robot import WORKSPACE_WAIT, Base, RobotTwin
+    from twinmesh.sim.world import World
 
     robot = Robot.load(urdf, ee=ee)
     the_scene = load_scene(scene) if scene else empty_scene()
-    where = Base(tuple(base[:3]), float(base[3])) if base else Base(tuple(the_scene.robot.position),
-                                                                    the_scene.robot.yaw)
+    if base:
+        where = Base((base[0], base[1], base[2]), float(base[3]))
+    else:
+        where = Base(the_scene.robot.position, the_scene.robot.yaw)
     cal = load_calibration(calibration) if calibration else None
     world = World(speed=speed)
     with ExitStack() as stack:

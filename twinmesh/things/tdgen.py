@@ -31,16 +31,16 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import msgspec
 
 from twinmesh.fabric.client import MeshClient
-from twinmesh.wot.problem import NotFound, Problem, Unavailable
-from twinmesh.messages.scene import TWIN_REL, TwinDescription
-from twinmesh.fabric.settings import MeshSettings
-from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 from twinmesh.fabric.server import ExposedThing
+from twinmesh.fabric.settings import MeshSettings
+from twinmesh.messages.scene import TWIN_REL, TwinDescription
+from twinmesh.wot.problem import NotFound, Problem, Unavailable
+from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +70,7 @@ class RobotStatus(msgspec.Struct, omit_defaults=True):
     seconds: float | None = None
     cached: bool | None = None
     error: str | None = None
+    progress: float | None = None  # 0..1 of the workspace sampling, while generating
 
 
 def twin_hash(twin: TwinDescription) -> str:
@@ -85,6 +86,8 @@ def service_td() -> ThingDescription:
         "status": {"type": "string", "enum": ["generating", "ready", "failed"]},
         "version": {"type": "integer", "minimum": 0}, "hash": {"type": "string"},
         "seconds": {"type": "number", "minimum": 0, "unit": "s"}, "cached": {"type": "boolean"},
+        "progress": {"type": "number", "minimum": 0, "maximum": 1,
+                     "description": "Share of the workspace samples checked so far, while generating"},
         "error": {"type": "string"}}}
     return decode_td({
         "title": THING,
@@ -97,7 +100,7 @@ def service_td() -> ThingDescription:
         "properties": {
             "robots": {"title": "Robots", "description": "Per robot: generation status, input hash, twin version, "
                        "seconds taken, whether it came from the cache, the error if it failed.",
-                       "type": "object", "readOnly": True, "observable": True},
+                       "type": "object", "additionalProperties": status, "readOnly": True, "observable": True},
         },
         "events": {
             "generated": {"title": "Generated", "description": "A robot's artefacts are ready to fetch.",
@@ -166,7 +169,7 @@ class TdgenService:
         self.thing.emit_property_change("robots", self.robots())
 
     def _file(self, name: str) -> tuple[bytes, str]:
-        for suffix, media in ARTEFACTS.items():
+        for suffix in ARTEFACTS:
             robot = name.removesuffix(f".{suffix}")
             if robot != name:
                 break
@@ -178,7 +181,7 @@ class TdgenService:
             if status is not None and status.status == "generating":
                 raise Unavailable(f"{robot}'s artefacts are being generated", reason="workspace-generating")
             raise NotFound(f"tdgen has generated nothing for {robot!r}")
-        return (self.cache_dir / ready / suffix).read_bytes(), media
+        return (self.cache_dir / ready / suffix).read_bytes(), ARTEFACTS[suffix]
 
     # --- discovery (Zenoh threads: hand off, never block) -----------------------------------------
     def _joined(self, thing: str) -> None:
@@ -247,9 +250,9 @@ class TdgenService:
         out = self.cache_dir / key
         cached = (out / DONE).exists()
         if not cached:
-            self._set_status(twin.robot, RobotStatus("generating", twin.version, key))
+            self._set_status(twin.robot, RobotStatus("generating", twin.version, key, progress=0.0))
             try:
-                self._generate_into(twin, out)
+                self._generate_into(twin, out, self._progress_reporter(twin, key))
             except Exception as e:  # noqa: BLE001 - every failure is reported on the mesh
                 expected = isinstance(e, _user_errors())
                 error = str(e) if expected else f"{type(e).__name__}: {e}"
@@ -269,10 +272,22 @@ class TdgenService:
         self.thing.emit_event("generated", {"robot": twin.robot, "hash": key, "version": twin.version})
         return status
 
-    def _generate_into(self, twin: TwinDescription, out: Path) -> None:
+    def _progress_reporter(self, twin: TwinDescription, key: str) -> Callable[[float], None]:
+        """Publishes the generation's progress at most twice a second (and its end)."""
+        last = [0.0]
+
+        def report(fraction: float) -> None:
+            now = time.monotonic()
+            if now - last[0] >= 0.5 or fraction >= 1.0:
+                last[0] = now
+                self._set_status(twin.robot, RobotStatus("generating", twin.version, key,
+                                                         progress=round(min(fraction, 1.0), 3)))
+        return report
+
+    def _generate_into(self, twin: TwinDescription, out: Path, on_progress: Callable[[float], None] | None = None) -> None:
         from twinmesh.robot.calibration import fit_calibration
-        from twinmesh.tdgen.generate import generate
         from twinmesh.robot.model import Robot, RobotError, resolve_urdf
+        from twinmesh.tdgen.generate import generate
         from twinmesh.tdgen.td import robot_id
 
         path = resolve_urdf(twin.urdf)
@@ -292,7 +307,7 @@ class TdgenService:
         shutil.rmtree(tmp, ignore_errors=True)
         try:
             generate(robot, scene_of(twin), twin.samples, twin.seed, tmp, calibration=calibration, frame=twin.frame,
-                     title=twin.robot, thing_id=robot_id(twin.robot), workers=workers)
+                     title=twin.robot, thing_id=robot_id(twin.robot), workers=workers, on_progress=on_progress)
             (tmp / "twin.json").write_bytes(msgspec.json.encode(twin))
             (tmp / DONE).write_text(GENERATOR_VERSION + "\n")
             try:

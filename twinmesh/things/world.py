@@ -26,6 +26,7 @@ URDFs and its reset, and knows nothing of what is on the tables.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 import time
@@ -34,14 +35,14 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 import msgspec
 
-from twinmesh.sim.layouts.obstacles import OBSTACLE_SCHEMA, Obstacle
-from twinmesh.sim.bodies import pose as _pose
-from twinmesh.sim.world import MAX_SPEED, MIN_SPEED, Snapshot, World
 from twinmesh.fabric.keys import Keys
-from twinmesh.wot.problem import BadInput
-from twinmesh.messages.scene import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription
-from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 from twinmesh.fabric.server import ExposedThing
+from twinmesh.messages.scene import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription
+from twinmesh.sim.bodies import pose as _pose
+from twinmesh.sim.layouts.obstacles import OBSTACLE_SCHEMA, Obstacle
+from twinmesh.sim.world import MAX_SPEED, MIN_SPEED, Snapshot, World
+from twinmesh.wot.problem import BadInput
+from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 
 log = logging.getLogger(__name__)
 
@@ -256,7 +257,7 @@ class WorldThing:
         t.on_action("resetWarehouse", lambda v: self.reset(v["cubes"]))
         t.on_file(SCENE_FILE, lambda: self._scene_json, "application/json")
         for robot, path in scene.robot_urdfs().items():
-            t.on_file(urdf_file(robot), lambda data=path.read_bytes(): data, URDF_TYPE)
+            t.on_file(urdf_file(robot), functools.partial(bytes, path.read_bytes()), URDF_TYPE)
         self._obstacles: ObstacleScene | None = scene if isinstance(scene, ObstacleScene) else None
         if isinstance(scene, ObstacleScene):
             t.on_read("obstacles", scene.obstacles)

@@ -23,18 +23,19 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 from pathlib import Path
+
 import pybullet as pb
 
-from twinmesh.sim.layouts.obstacles import Obstacle, build, scene_body
-from twinmesh.sim.pan_tilt import PAN_TILT_URDF, PanTilt
-from twinmesh.sim.layouts.platform import IotPlatform
-from twinmesh.sim.robot import WORKSPACE_WAIT, Base, RobotTwin
-from twinmesh.sim.bodies import box, pose
-from twinmesh.sim.world import DEFAULT_DT, Snapshot, World, body_pose, static_box
-from twinmesh.wot.problem import Refused
 from twinmesh.messages.scene import Body, RobotModel, SceneDescription
 from twinmesh.robot.model import Robot
 from twinmesh.robot.surroundings import BoxBody, Scene, build_into
+from twinmesh.sim.bodies import box, pose
+from twinmesh.sim.layouts.obstacles import Obstacle, build, scene_body
+from twinmesh.sim.layouts.platform import IotPlatform
+from twinmesh.sim.pan_tilt import PAN_TILT_URDF, PanTilt
+from twinmesh.sim.robot import WORKSPACE_WAIT, Base, RobotTwin
+from twinmesh.sim.world import DEFAULT_DT, Snapshot, World, body_pose, static_box
+from twinmesh.wot.problem import Refused
 
 TABLE_TOP = 0.75
 OFF_RGB = (0.35, 0.35, 0.35)

@@ -8,18 +8,19 @@ box the recorder draws.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import msgspec
 import pybullet as pb
 
-from twinmesh.sim.world import static_box
 from twinmesh.robot.surroundings import BoxBody
+from twinmesh.sim.world import static_box
 
 PREFIX = "obstacle-"  # the body name of obstacle `name` in the scene: obstacle-<name>
 COLOR = (0.95, 0.45, 0.1)
 
 _VEC3 = {"type": "array", "minItems": 3, "maxItems": 3}
-OBSTACLE_SCHEMA = {
+OBSTACLE_SCHEMA: dict[str, Any] = {
     "type": "object", "required": ["name", "size", "position"],
     "properties": {
         "name": {"type": "string", "pattern": "^[a-z0-9-]{1,40}$", "description": "Slug naming the obstacle."},

@@ -16,20 +16,21 @@ belts' far ends, slot 0 next to the right belt.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from dataclasses import dataclass
-from typing import Any, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from twinmesh.messages.scene import Body, RobotModel, SceneDescription
 from twinmesh.sim.belt import Belt
+from twinmesh.sim.bodies import box, pose
+from twinmesh.sim.compensation import DOBOT_URDF, MODELS, UARM_URDF
 from twinmesh.sim.dobot import CUBE_SIZE, Cube, Dobot, Warehouse, make_cube
 from twinmesh.sim.sensors import ColorSensor, InfraredSensor
 from twinmesh.sim.uarm import Uarm, write_calibration_csv
+from twinmesh.sim.vec import Vec
 from twinmesh.sim.world import DEFAULT_DT, Snapshot, World, body_pose, place, static_box
-from twinmesh.sim.compensation import DOBOT_URDF, MODELS, UARM_URDF
-from twinmesh.sim.bodies import box, pose
-from twinmesh.messages.scene import Body, RobotModel, SceneDescription
 
 TABLE_HEIGHT = 0.75
 UARM_BASE = (-0.375, 0.0, TABLE_HEIGHT)   # scene frame, m: the real uArm frame's origin (origin=0)
@@ -82,7 +83,7 @@ class IotPlatform:
 
     name = "iot-platform"
 
-    def __init__(self, world: World, origin: Sequence[float] = (0.0, 0.0, 0.0), layout: Layout = LAYOUT,
+    def __init__(self, world: World, origin: Vec = (0.0, 0.0, 0.0), layout: Layout = LAYOUT,
                  colors: dict[str, tuple[float, float, float]] = CUBE_COLORS, floor: bool = True):
         self.world, self.layout = world, layout
         self.uarm_base = np.asarray(origin, float) + UARM_BASE
@@ -171,8 +172,9 @@ class IotPlatform:
             named[name] = belt.body
             for i, stop in enumerate(belt.end_stops):
                 named[f"{name}-end-stop-{i + 1}"] = stop
-        for name, sensor in [*self.infrared.items(), ("color-sensor", self.color_sensor)]:
-            named[name] = sensor.body
+        for name, infrared in self.infrared.items():
+            named[name] = infrared.body
+        named["color-sensor"] = self.color_sensor.body
         bodies: list[Body] = [box(c, name, body) for name, body in named.items()]
         bodies += [box(c, cube.name, cube.body, moving=True) for cube in self.cubes]
         robots = [RobotModel(name=robot, urdf=f"{robot}.urdf", base=pose(body_pose(c, self.devices[robot].arm.body)))
@@ -235,7 +237,7 @@ class IotPlatform:
 
 
 def build_platform(*, speed: float | None = 1.0, dt: float = DEFAULT_DT, snapshot_hz: float = 30.0,
-                   origin: Sequence[float] = (0.0, 0.0, 0.0),
+                   origin: Vec = (0.0, 0.0, 0.0),
                    colors: dict[str, tuple[float, float, float]] = CUBE_COLORS, start: bool = True) -> IotPlatform:
     """A new world with the iot-platform scene in it, stepping (`start=True`) at `speed`.
 

@@ -1,0 +1,63 @@
+"""A normal install works: the wheel holds every file the code reads at run time, and the `iot-lab`
+starts from it, in a fresh virtual environment, run from a folder outside the repository."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import httpx
+import pytest
+from labs import REPO, free_port, stop_process
+
+# what the code reads beside its modules
+DATA = ["twinmesh/robot/models/ur10.urdf", "twinmesh/robot/models/uarm_swift_pro.urdf",
+        "twinmesh/robot/models/dobot_magician.urdf", "twinmesh/robot/models/pan-tilt.urdf",
+        "twinmesh/robot/models/uarm-calibration.csv", "twinmesh/robot/scenes/table-and-wall.json",
+        "twinmesh/robot/scenes/cluttered-lab.json", "twinmesh/things/tds/pan-tilt.json",
+        "twinmesh/things/tds/uarm.json", "twinmesh/things/tds/dobot.json"]
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("wheel")
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(out), str(REPO)],
+                   check=True, capture_output=True, timeout=600)
+    return next(out.glob("twinmesh-*.whl"))
+
+
+def test_the_wheel_holds_every_data_file(wheel):
+    names = set(zipfile.ZipFile(wheel).namelist())
+    assert [d for d in DATA if d not in names] == []
+    assert len([n for n in names if n.startswith("twinmesh/things/tds/")]) == len(
+        list((REPO / "twinmesh" / "things" / "tds").glob("*.json")))
+
+
+def test_the_iot_lab_starts_from_an_installed_wheel(wheel, tmp_path):
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
+    pip = [str(venv / "bin" / "python"), "-m", "pip", "install", "-q", str(wheel)]
+    installed = subprocess.run(pip, capture_output=True, text=True, timeout=1200)
+    assert installed.returncode == 0, installed.stderr[-2000:]
+    twinmesh = str(venv / "bin" / "twinmesh")
+    elsewhere = tmp_path / "elsewhere"  # not the repository: nothing can be read from the checkout
+    elsewhere.mkdir()
+    endpoint, port = f"tcp/127.0.0.1:{free_port()}", free_port()
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    log = tmp_path / "lab.log"
+    lab = subprocess.Popen([twinmesh, "--connect", endpoint, "up", "iot-lab", "--speed", "max", "--samples", "2000",
+                            "--http", f"127.0.0.1:{port}", "--tdgen-cache", str(tmp_path / "cache")],
+                           cwd=elsewhere, env=env, stdout=open(log, "wb"), stderr=subprocess.STDOUT,
+                           start_new_session=True)
+    try:
+        ready = subprocess.run([twinmesh, "--connect", endpoint, "wait", "--timeout", "240"], cwd=elsewhere, env=env,
+                               capture_output=True, text=True, timeout=300)
+        assert ready.returncode == 0, f"{ready.stderr}\n{log.read_text()[-3000:]}"
+        things = httpx.get(f"http://127.0.0.1:{port}/things").json()
+        assert {td["title"] for td in things} >= {"uarm", "dobot", "ur10", "pan-tilt-1", "world", "tdgen"}
+        assert httpx.get(f"http://127.0.0.1:{port}/pan-tilt-1/properties/panPosition").status_code == 200
+    finally:
+        stopped_alone = stop_process(lab, timeout=60)
+    assert stopped_alone and lab.returncode == 0, f"the installed lab did not stop on Ctrl-C\n{log.read_text()[-3000:]}"
