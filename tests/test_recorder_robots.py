@@ -405,21 +405,28 @@ def _safe_target(lab, td: dict) -> dict[str, float]:
     return {a: round(float(v), 1) for a, v in zip("xyz", best)}
 
 
-def test_a_mesh_based_urdf_is_drawn_with_its_meshes():
+def test_a_mesh_based_urdf_is_drawn_with_its_meshes(tmp_path):
     """The Panda's links are meshes (`package://meshes/...`): the recorder resolves them against the
     URDF's own folder, as pybullet does, so the recording holds a mesh per link, not only frames."""
     import pybullet_data
+    from rerun.chunk import RrdReader
 
     from twinmesh.recorder.scene import Robot
 
     urdf = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
     robot = Robot.load("panda", urdf.read_text(), "world/robots/panda", urdf.parent)
-    chunks, _ = robot.static_chunks()
-    meshes = {c.entity_path for c in chunks if any(f.name.startswith("Asset3D:") for f in c.to_record_batch().schema)}
+    assert robot.missing == []
+    path = _drawn(tmp_path, lambda rec: robot.draw(rec, Pose((0.0, 0.0, 0.0))))
+    meshes = {}  # entity -> bytes of the mesh file recorded there
+    for chunk in RrdReader(path).stream().filter(content="/world/robots/panda/**", is_static=True):
+        batch = chunk.to_record_batch()
+        if "Asset3D:blob" in batch.schema.names:
+            blobs = [b for b in batch.column("Asset3D:blob").to_pylist() if b]
+            meshes[chunk.entity_path] = sum(len(bytes(b[0])) for b in blobs)
     links = {"panda_link0", "panda_link1", "panda_link2", "panda_link3", "panda_link4", "panda_link5", "panda_link6",
              "panda_link7", "panda_hand", "panda_leftfinger", "panda_rightfinger"}
-    assert {link for link in links if any(f"/{link}/" in m for m in meshes)} == links, meshes
-    assert robot.missing == []
+    drawn = {link for link in links for entity, size in meshes.items() if f"/{link}/" in entity and size > 1000}
+    assert drawn == links, meshes
 
 
 def test_a_mesh_that_cannot_be_found_is_named_with_where_it_was_looked_for(tmp_path):
