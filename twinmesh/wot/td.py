@@ -84,13 +84,18 @@ class PropertyAffordance(DataSchema, omit_defaults=True):
     forms: list[Form] = []
 
 
-class ActionAffordance(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type"}):
+class InteractionAffordance(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type"}):
+    """What actions and events share (TD 1.1 §5.3.1.4; a property has the same through DataSchema)."""
+
     title: str | None = None
     titles: dict[str, str] | None = None
     description: str | None = None
     descriptions: dict[str, str] | None = None
     at_type: str | list[str] | None = None
     uriVariables: dict[str, DataSchema] | None = None
+
+
+class ActionAffordance(InteractionAffordance):
     input: DataSchema | None = None
     output: DataSchema | None = None
     safe: bool | None = None
@@ -99,13 +104,7 @@ class ActionAffordance(msgspec.Struct, omit_defaults=True, rename={"at_type": "@
     forms: list[Form] = []
 
 
-class EventAffordance(msgspec.Struct, omit_defaults=True, rename={"at_type": "@type"}):
-    title: str | None = None
-    titles: dict[str, str] | None = None
-    description: str | None = None
-    descriptions: dict[str, str] | None = None
-    at_type: str | list[str] | None = None
-    uriVariables: dict[str, DataSchema] | None = None
+class EventAffordance(InteractionAffordance):
     subscription: DataSchema | None = None
     data: DataSchema | None = None
     dataResponse: DataSchema | None = None
