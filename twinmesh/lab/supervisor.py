@@ -24,6 +24,9 @@ from twinmesh.fabric.settings import MeshSettings
 log = logging.getLogger(__name__)
 
 
+SAME_CTRL_C = 1.0  # s a child's exit may precede the lab's own stop signal and still be part of it
+
+
 @dataclass(frozen=True)
 class ProcessSpec:
     """One process of a lab: a name and a `module:function` entry point with keyword arguments.
@@ -141,6 +144,8 @@ class Supervisor:
         failed = ""
         while not self.stop.wait(0.2):
             dead = [n for n, p in self.procs.items() if not p.is_alive()]
+            if dead and self.stop.wait(SAME_CTRL_C):  # a terminal's Ctrl-C reaches the children too, and
+                break                                # one may end before our own handler has run
             if dead:
                 failed = dead[0]
                 log.error("process %s exited (code %s); stopping the lab", failed, self.procs[failed].exitcode)
