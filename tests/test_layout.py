@@ -46,3 +46,11 @@ def test_parts_import_only_parts_before_them():
             elif other == "lab" and me != "cli":
                 broken.append(f"{rel} imports twinmesh.lab (only the CLI may)")
     assert not broken, "\n".join(broken)
+
+
+def test_inside_http_only_the_gateway_touches_the_zenoh_binding():
+    """The HTTP binding knows the mesh through its gateway (the registry); `server.py`, the adapter
+    process's entry point, opens the session it hands to the gateway."""
+    allowed = {"gateway.py", "server.py"}
+    touching = sorted(p.name for p in (ROOT / "http").glob("*.py") if "fabric" in _imports(p) and p.name not in allowed)
+    assert touching == [], f"http modules importing twinmesh.fabric besides the gateway: {touching}"

@@ -8,9 +8,8 @@ from typing import Any
 
 from starlette.requests import Request
 
-from twinmesh.fabric.keys import SLUG
 from twinmesh.http.auth import Auth
-from twinmesh.http.gateway import Registry
+from twinmesh.http.gateway import SLUG, Registry
 from twinmesh.http.tdrewrite import NOSEC, Security
 from twinmesh.wot.problem import NotFound
 from twinmesh.wot.td import AffordanceKind, ThingDescription

@@ -29,6 +29,8 @@ import msgspec
 
 from twinmesh.fabric.client import MeshClient, Reply
 from twinmesh.fabric.directory import Directory
+from twinmesh.fabric.keys import NAME as NAME  # the names a key may hold: the routes check them
+from twinmesh.fabric.keys import SLUG as SLUG
 from twinmesh.fabric.settings import MeshSettings
 from twinmesh.http.observers import Change, Feed, Observers
 from twinmesh.http.problems import unavailable

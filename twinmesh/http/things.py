@@ -20,8 +20,8 @@ from starlette.requests import Request
 from starlette.responses import Response
 from starlette.routing import Route
 
-from twinmesh.fabric.keys import NAME
 from twinmesh.http.context import base_url, registry, security, thing_name
+from twinmesh.http.gateway import NAME
 from twinmesh.http.tdrewrite import LD_JSON, TD_JSON, directory_td, http_td, served_id
 from twinmesh.wot.problem import BadInput, NotFound, Problem
 from twinmesh.wot.td import JSON
