@@ -11,7 +11,7 @@ from tqdm import tqdm
 
 from twinmesh.apps.evaluation import Consumer, HttpThings, evaluate_ik, read_targets, summary, write_table
 from twinmesh.cli.exits import problem_exit
-from twinmesh.fabric.client import MeshClient
+from twinmesh.cli.mesh_client import mesh_client
 from twinmesh.wot.problem import Problem
 
 
@@ -24,14 +24,8 @@ def consumer(settings, via: str | None) -> Iterator[Consumer]:
         finally:
             things.close()
         return
-    from twinmesh.fabric.session import one_shot_session
-
-    mode_given = click.get_current_context().find_root().params.get("mode") is not None
-    try:
-        with one_shot_session(settings, mode_given) as session:
-            yield MeshClient(session, settings)
-    except Problem as p:
-        raise problem_exit(p) from None
+    with mesh_client(settings) as client:
+        yield client
 
 
 # --- the command ----------------------------------------------------------------------------------

@@ -11,7 +11,8 @@ import click
 import msgspec
 
 from twinmesh.cli import completion
-from twinmesh.cli.exits import UNREACHABLE, CommandFailed, problem_exit, usage_exit
+from twinmesh.cli.exits import UNREACHABLE, CommandFailed, usage_exit
+from twinmesh.cli.mesh_client import mesh_client
 from twinmesh.fabric.client import NOTHING, MeshClient
 from twinmesh.fabric.settings import DEFAULT_ENDPOINT, MeshSettings
 from twinmesh.lab.supervisor import ProcessSpec, Supervisor, set_title
@@ -266,20 +267,6 @@ def record(settings: MeshSettings, path: str | None, repair: bool) -> None:
 
 
 # --- consuming, as a plain Zenoh peer --------------------------------------------------------
-@contextmanager
-def _client(settings: MeshSettings):
-    """A one-shot consumer; Problems (no lab, Thing gone, refused) become CLI messages."""
-    from twinmesh.fabric.session import one_shot_session
-
-    try:
-        with one_shot_session(settings, _mode_given()) as session:
-            yield MeshClient(session, settings)
-    except Problem as p:
-        raise problem_exit(p) from None
-
-
-def _mode_given() -> bool:
-    return click.get_current_context().find_root().params.get("mode") is not None
 
 
 def _parse_json(text: str, what: str) -> Any:
@@ -297,7 +284,7 @@ def _echo(value: Any) -> None:
 @click.pass_obj
 def things(settings: MeshSettings) -> None:
     """List the Things alive on the mesh."""
-    with _client(settings) as c:
+    with mesh_client(settings) as c:
         for name in c.things():
             click.echo(name)
 
@@ -307,7 +294,7 @@ def things(settings: MeshSettings) -> None:
 @click.pass_obj
 def td(settings: MeshSettings, thing: str) -> None:
     """Print a Thing's TD (with its Zenoh forms)."""
-    with _client(settings) as c:
+    with mesh_client(settings) as c:
         click.echo(json.dumps(json.loads(c.td_bytes(thing)), indent=2))
 
 
@@ -317,7 +304,7 @@ def td(settings: MeshSettings, thing: str) -> None:
 @click.pass_obj
 def read(settings: MeshSettings, thing: str, prop: str) -> None:
     """Read a property."""
-    with _client(settings) as c:
+    with mesh_client(settings) as c:
         _echo(c.read(thing, prop))
 
 
@@ -329,7 +316,7 @@ def read(settings: MeshSettings, thing: str, prop: str) -> None:
 def write(settings: MeshSettings, thing: str, prop: str, value: str) -> None:
     """Write a property (VALUE is JSON, e.g. true, 42, '[1,0,0]')."""
     data = _parse_json(value, "VALUE")
-    with _client(settings) as c:
+    with mesh_client(settings) as c:
         c.write(thing, prop, data)
 
 
@@ -341,7 +328,7 @@ def write(settings: MeshSettings, thing: str, prop: str, value: str) -> None:
 def invoke(settings: MeshSettings, thing: str, action: str, input: str | None) -> None:
     """Invoke an action (INPUT is JSON) and print its output."""
     data = NOTHING if input is None else _parse_json(input, "INPUT")
-    with _client(settings) as c:
+    with mesh_client(settings) as c:
         out = c.invoke(thing, action, data)
         if out is not None:
             _echo(out)
@@ -358,7 +345,7 @@ def plan(settings: MeshSettings, thing: str, xyz: tuple[float, ...], joints: str
     if (len(xyz) == 3) == (joints is not None) or len(xyz) not in (0, 3):
         raise click.UsageError("give X Y Z, or --joints JSON")
     request = {"joints": _parse_json(joints, "--joints")} if joints else dict(zip("xyz", xyz))
-    with _client(settings) as c:
+    with mesh_client(settings) as c:
         _echo(c.invoke(thing, "planMove", request))
 
 
@@ -366,7 +353,7 @@ def _follow(settings: MeshSettings, subscribe_name: str, thing: str, name: str, 
     import queue
 
     q: queue.Queue = queue.Queue()
-    with _client(settings) as c:
+    with mesh_client(settings) as c:
         found = c.check_affordance(thing, "properties" if subscribe_name == "observe" else "events", name)
         if subscribe_name == "observe" and not getattr(found, "observable", False):
             raise click.ClickException(f"property {name!r} of {thing} is not observable")

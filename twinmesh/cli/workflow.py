@@ -15,8 +15,7 @@ from twinmesh.apps.cube_workflow import (
     StepFailed,
     cube_workflow,
 )
-from twinmesh.cli.exits import problem_exit
-from twinmesh.fabric.client import MeshClient
+from twinmesh.cli.mesh_client import mesh_client
 
 
 # --- the commands ----------------------------------------------------------------------------------
@@ -62,12 +61,5 @@ def _consumer(settings, via: str | None, auth: str | None) -> Iterator[Consumer]
         finally:
             consumer.close()
         return
-    from twinmesh.fabric.session import one_shot_session
-    from twinmesh.wot.problem import Problem
-
-    mode_given = click.get_current_context().find_root().params.get("mode") is not None
-    try:
-        with one_shot_session(settings, mode_given) as session:
-            yield MeshConsumer(MeshClient(session, settings))
-    except Problem as p:
-        raise problem_exit(p) from None
+    with mesh_client(settings) as client:
+        yield MeshConsumer(client)
