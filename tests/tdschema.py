@@ -1,4 +1,4 @@
-"""Validate Thing Descriptions against the official TD 1.1 JSON schema, with format checks on.
+"""Validate Thing Descriptions (and Thing Models) against the official TD 1.1 JSON schemas, formats checked.
 
 The schema alone is loose (NOTES.md): it does not check that security names exist in
 securityDefinitions, so that is checked here too.
@@ -17,9 +17,9 @@ TM_SCHEMA = DATA / "wot" / "tm-1.1-json-schema-validation.json"
 REFERENCE_TDS = DATA / "reference-tds"
 
 
-@lru_cache(maxsize=1)
-def _validator() -> jsonschema.protocols.Validator:
-    schema = json.loads(TD_SCHEMA.read_text())
+@lru_cache(maxsize=2)
+def _validator(path: Path = TD_SCHEMA) -> jsonschema.protocols.Validator:
+    schema = json.loads(path.read_text())
     cls = jsonschema.validators.validator_for(schema)
     return cls(schema, format_checker=cls.FORMAT_CHECKER)
 
@@ -37,3 +37,9 @@ def td_errors(td: dict) -> list[str]:
 def assert_valid_td(td: dict) -> None:
     errors = td_errors(td)
     assert not errors, "TD invalid:\n" + "\n".join(errors)
+
+
+def assert_valid_tm(tm: dict) -> None:
+    """A Thing Model (TD 1.1 §10) against the official TM schema, formats checked."""
+    errors = [f"{'/'.join(map(str, e.absolute_path))}: {e.message}" for e in _validator(TM_SCHEMA).iter_errors(tm)]
+    assert not errors, "TM invalid:\n" + "\n".join(errors)

@@ -18,6 +18,7 @@ import pytest
 from labs import start_lab
 from tdschema import assert_valid_td
 
+from twinmesh.messages.relations import POINTS
 from twinmesh.sim.robot import workspace_from_csv
 
 SAMPLES = "4000"
@@ -48,7 +49,7 @@ def ur10_td(http: httpx.Client, version: int, timeout: float = 120.0) -> dict:
     td: dict = {}
     while time.monotonic() < deadline:
         td = http.get("/ur10").json()
-        if td.get("version", {}).get("instance") == str(version) and _links(td).get("dataset-points"):
+        if td.get("version", {}).get("instance") == str(version) and _links(td).get(POINTS):
             return td
         time.sleep(0.05)
     raise AssertionError(f"no generated ur10 TD for version {version} within {timeout} s; last: {td.get('version')}")
@@ -59,7 +60,7 @@ def _links(td: dict) -> dict[str, str]:
 
 
 def _points(http: httpx.Client, td: dict):
-    return workspace_from_csv(http.get(_links(td)["dataset-points"]).content)
+    return workspace_from_csv(http.get(_links(td)[POINTS]).content)
 
 
 def long_poll(url: str) -> queue.Queue:

@@ -19,6 +19,8 @@ from labs import REPO, start_lab, stop_process
 from test_recorder import RERUN, read_column, scalars, texts, wait_for_line
 
 from twinmesh.fabric.settings import MeshSettings
+from twinmesh.messages.relations import MODEL, POINTS, WORKSPACE
+from twinmesh.messages.relations import TWIN as TWIN_REL
 from twinmesh.messages.scene import Pose, RobotModel, SceneDescription, TwinDescription
 from twinmesh.recorder.robots import RobotDrawer, RobotFiles, Workspace, joint_units, link_file, to_twin_frame
 from twinmesh.recorder.scene import SceneDrawer, SceneFiles, lab_blueprint
@@ -33,10 +35,10 @@ TWIN = TwinDescription(robot="ur10", urdf="twinmesh/robot/models/ur10.urdf", urd
 SWEEP_DEG = [round(1.5 * i, 3) for i in range(40)]  # shoulder_pan, deg
 ELBOW_DEG = -30.0
 FIRST = {j: 0.0 for j in JOINTS}
-LINKS = [Link(href="files/twin.json", rel="twin", type="application/json"),
-         Link(href="files/ur10.urdf", rel="model", type="application/xml"),
-         Link(href="files/workspace.stl", rel="workspace", type="model/stl"),
-         Link(href="files/points.csv", rel="dataset-points", type="text/csv")]
+LINKS = [Link(href="files/twin.json", rel=TWIN_REL, type="application/json"),
+         Link(href="files/ur10.urdf", rel=MODEL, type="application/xml"),
+         Link(href="files/workspace.stl", rel=WORKSPACE, type="model/stl"),
+         Link(href="files/points.csv", rel=POINTS, type="text/csv")]
 
 
 def robot_td(links: list[Link] = LINKS) -> ThingDescription:
@@ -45,8 +47,8 @@ def robot_td(links: list[Link] = LINKS) -> ThingDescription:
                                   properties={f: DataSchema(type="number", unit=unit) for f in fields})
 
     return ThingDescription(title="ur10", description="a synthetic UR10 Thing for the recorder's tests", links=links,
-                            properties={"getJointposition": observable("deg", JOINTS),
-                                        "getCartesianposition": observable("mm", list("xyz"))})
+                            properties={"getJointposition": observable("qudt:DEG", JOINTS),
+                                        "getCartesianposition": observable("qudt:MilliM", list("xyz"))})
 
 
 def make_points(n: int, seed: int) -> tuple[bytes, np.ndarray, np.ndarray]:
@@ -295,11 +297,11 @@ def test_units_come_from_the_td():
 
 
 def test_link_files_are_found_whatever_the_href():
-    td = ThingDescription(title="t", links=[Link(href="zenoh:wot/ur10/files/twin.json", rel="twin"),
+    td = ThingDescription(title="t", links=[Link(href="zenoh:wot/ur10/files/twin.json", rel=TWIN_REL),
                                             Link(href="http://lab:8080/things/ur10/files/points.csv?x=1",
-                                                 rel="dataset-points"),
-                                            Link(href="workspace.stl", rel="workspace")])
-    assert [link_file(td, r) for r in ("twin", "dataset-points", "workspace", "model")] == [
+                                                 rel=POINTS),
+                                            Link(href="workspace.stl", rel=WORKSPACE)])
+    assert [link_file(td, r) for r in (TWIN_REL, POINTS, WORKSPACE, MODEL)] == [
         "twin.json", "points.csv", "workspace.stl", None]
 
 
@@ -369,7 +371,7 @@ def _wait_workspace(lab, thing: str, timeout: float) -> dict:
         r = lab.cli("td", thing, timeout=30)
         if r.returncode == 0:
             td = json.loads(r.stdout)
-            if {"workspace", "dataset-points"} <= {link.get("rel") for link in td.get("links", [])}:
+            if {WORKSPACE, POINTS} <= {link.get("rel") for link in td.get("links", [])}:
                 return td
         time.sleep(1.0)
     raise AssertionError(f"{thing}'s TD never linked its workspace within {timeout} s\n{lab.log.read_text()[-3000:]}")
@@ -388,7 +390,7 @@ def _safe_target(lab, td: dict) -> dict[str, float]:
         client, deadline = MeshClient(session, settings), time.monotonic() + 20
         while True:  # a new session may not route to the robot at once
             try:
-                csv = client.file("ur10", link_file(decode_td(td), "dataset-points")).payload
+                csv = client.file("ur10", link_file(decode_td(td), POINTS)).payload
                 break
             except Unavailable:
                 if time.monotonic() > deadline:

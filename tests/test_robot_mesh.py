@@ -24,6 +24,7 @@ from interop import npm
 from labs import start_lab, stop_process
 from tdschema import assert_valid_td
 
+from twinmesh.messages.relations import MODEL, POINTS, SCENE, TWIN, WORKSPACE
 from twinmesh.sim.robot import workspace_from_csv
 
 SAMPLES = "6000"
@@ -51,7 +52,7 @@ def wait_generated(lab, name: str, timeout: float = 120.0) -> dict:
         try:
             r = httpx.get(f"{lab.http}/{name}", timeout=5)
             last = r.status_code
-            if r.status_code == 200 and any(link.get("rel") == "workspace" for link in r.json().get("links", [])):
+            if r.status_code == 200 and any(link.get("rel") == WORKSPACE for link in r.json().get("links", [])):
                 return r.json()
         except httpx.HTTPError as e:
             last = e
@@ -88,7 +89,7 @@ def robots(lab):
     for name, (t0, proc) in started.items():
         td = wait_generated(lab, name)
         out[name] = {"td": td, "seconds": time.monotonic() - t0, "proc": proc,
-                     "points": workspace_from_csv(httpx.get(_link(td, "dataset-points")).content)}
+                     "points": workspace_from_csv(httpx.get(_link(td, POINTS)).content)}
     print("\ncold time to the generated TD (3 robots started at once): "
           + ", ".join(f"{n} {r['seconds']:.2f} s" for n, r in out.items()))
     return out
@@ -132,25 +133,25 @@ def test_each_robot_td_is_generated_on_the_mesh_served_and_valid(lab, robots, na
                                                                              "planning_ms"]
     assert td["version"] == {"instance": "0"} and td["id"] == f"urn:twinmesh:robot:{name}"
     rels = {link["rel"]: link["href"] for link in td["links"]}
-    assert {r: rels[r] for r in ("workspace", "dataset-points", "scene", "twin")} == {
-        "workspace": f"{lab.http}/{name}/files/workspace.stl", "dataset-points": f"{lab.http}/{name}/files/points.csv",
-        "scene": f"{lab.http}/{name}/files/scene.json", "twin": f"{lab.http}/{name}/files/twin.json"}
-    assert http.get(rels["model"]).text.lstrip().startswith("<")
+    assert {r: rels[r] for r in (WORKSPACE, POINTS, SCENE, TWIN)} == {
+        WORKSPACE: f"{lab.http}/{name}/files/workspace.stl", POINTS: f"{lab.http}/{name}/files/points.csv",
+        SCENE: f"{lab.http}/{name}/files/scene.json", TWIN: f"{lab.http}/{name}/files/twin.json"}
+    assert http.get(rels[MODEL]).text.lstrip().startswith("<")
     assert all(low < high for low, high in _bounds(td).values())
     status = http.get("/tdgen/properties/robots").json()[name]
     assert status["status"] == "ready" and status["version"] == 0 and len(status["hash"]) == 32
-    twin = http.get(rels["twin"]).json()
+    twin = http.get(rels[TWIN]).json()
     assert twin["robot"] == name and twin["samples"] == int(SAMPLES)
 
 
 @pytest.mark.parametrize("name", ROBOTS)
 def test_the_workspace_stl_and_the_points_csv_download_and_load(robots, name, http):
     td = robots[name]["td"]
-    stl = http.get(_link(td, "workspace"))
+    stl = http.get(_link(td, WORKSPACE))
     assert stl.status_code == 200 and stl.headers["content-type"] == "model/stl"
     mesh = trimesh.load(io.BytesIO(stl.content), file_type="stl")
     assert mesh.is_watertight and mesh.volume > 0
-    rows = list(csv.reader(io.StringIO(http.get(_link(td, "dataset-points")).text)))
+    rows = list(csv.reader(io.StringIO(http.get(_link(td, POINTS)).text)))
     joints = list(td["properties"]["getJointposition"]["properties"])
     assert rows[0] == ["x", "y", "z", "collision", *joints] and len(rows) == int(SAMPLES) + 1
     free = np.array([[float(v) for v in r[:3]] for r in rows[1:] if r[3] == "0"])
@@ -159,6 +160,21 @@ def test_the_workspace_stl_and_the_points_csv_download_and_load(robots, name, ht
     assert scene["name"] == "table-and-wall" and any(b["name"] == "wall" for b in scene["bodies"])
     assert http.get(f"/tdgen/files/{name}.workspace.stl").content == stl.content  # the service's own copy
     assert http.get(f"/tdgen/files/{name}.nothing").status_code == 404
+
+
+def test_tdgen_offline_writes_exactly_the_td_the_running_robot_serves_and_node_wot_consumes_it(lab, robots, tmp_path):
+    """One builder: `twinmesh tdgen` with the lab's Thing URL and the robot's inputs writes, byte for byte
+    as JSON, what the adapter serves for the UR10; node-wot consumes that file and reads through it."""
+    served = httpx.get(f"{lab.http}/ur10").json()
+    done = lab.cli("tdgen", ROBOTS["ur10"][0], "--scene", "table-and-wall", "--samples", SAMPLES, "--workers", "1",
+                   "--no-progress", "--base-url", f"{lab.http}/ur10", "--out", str(tmp_path / "ur10"), timeout=300)
+    assert done.returncode == 0, done.stderr
+    written = json.loads((tmp_path / "ur10" / "td.json").read_text())
+    assert written == served
+    results = npm.run_client((tmp_path / "ur10" / "td.json").as_uri(), [
+        {"op": "readProperty", "name": "getJointposition"}, {"op": "readProperty", "name": "getCartesianposition"}])
+    assert [r["ok"] for r in results] == [True, True], results
+    assert set(results[0]["value"]) == set(served["properties"]["getJointposition"]["properties"])
 
 
 @pytest.mark.parametrize("name", ROBOTS)

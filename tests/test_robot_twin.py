@@ -15,6 +15,7 @@ from tdschema import assert_valid_td
 from twinmesh.fabric.client import MeshClient
 from twinmesh.fabric.session import open_session
 from twinmesh.fabric.settings import MeshSettings
+from twinmesh.messages.relations import MODEL, POINTS, SCENE, TWIN, WORKSPACE
 from twinmesh.robot.calibration import fit_calibration
 from twinmesh.robot.surroundings import BoxBody, build_into
 from twinmesh.sim.robot import Base, RobotTwin, TdFrame, workspace_from_csv
@@ -68,7 +69,7 @@ def test_cartesian_moves_are_refused_with_503_until_the_workspace_is_known(twin)
     td = msgspec.to_builtins(provisional_td(twin))
     assert_valid_td(td)
     assert all("minimum" not in axis for axis in td["properties"]["getCartesianposition"]["properties"].values())
-    assert {link["rel"] for link in td["links"]} == {"twin", "model"}
+    assert {link["rel"] for link in td["links"]} == {TWIN, MODEL}
     before = twin.joint_position()
     with pytest.raises(Problem) as err:
         twin.move_to_cartesian((500, 0, 500))
@@ -237,8 +238,8 @@ def test_a_new_obstacle_regenerates_a_smaller_workspace_and_td_observers_see_it(
             client.invoke("ur10", "moveToCartesianPosition", dict(zip("xyz", target.tolist())))
         assert err.value.status == 422 and err.value.reason in ("collision", "no-path", "outside-workspace")
         assert {(link.rel, link.href) for link in second.links} >= {
-            ("workspace", "files/workspace.stl"), ("dataset-points", "files/points.csv"),
-            ("scene", "files/scene.json"), ("twin", "files/twin.json"), ("model", "files/ur10.urdf")}
+            (WORKSPACE, "files/workspace.stl"), (POINTS, "files/points.csv"),
+            (SCENE, "files/scene.json"), (TWIN, "files/twin.json"), (MODEL, "files/ur10.urdf")}
         assert thing.thing.td == second or thing.thing.td.version == second.version
 
 

@@ -24,7 +24,7 @@ def td_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("cli") / "xarm"
     result = _run("tdgen", "xarm/xarm6_robot.urdf", "--scene", "table-and-wall", "--samples", 3000, "--seed", 1,
                   "--out", out, "--workers", 1, "--concave", "--base-url", "http://lab.example/things/xarm/",
-                  "--title", "xArm 6", "--id", "urn:uuid:8a0c5f4e-2c1b-4d7e-9a51-0f3c2b1d4e6a")
+                  "--security", "bearer", "--id", "urn:uuid:8a0c5f4e-2c1b-4d7e-9a51-0f3c2b1d4e6a")
     assert result.exit_code == 0, result.output
     return out, result.output
 
@@ -35,7 +35,10 @@ def test_tdgen_writes_the_td_and_its_artefacts(td_dir):
     assert names == {"td.json", "robot-info.json", "points.csv", "workspace.stl", "workspace-concave.stl",
                      "scene.json"}
     td = json.loads((out / "td.json").read_text())
-    assert (td["title"], td["id"]) == ("xArm 6", "urn:uuid:8a0c5f4e-2c1b-4d7e-9a51-0f3c2b1d4e6a")
+    assert (td["title"], td["id"]) == ("xarm", "urn:uuid:8a0c5f4e-2c1b-4d7e-9a51-0f3c2b1d4e6a")  # the URL's Thing
+    assert td["properties"]["getJointposition"]["forms"][0]["href"] == \
+        "http://lab.example/things/xarm/properties/getJointposition"
+    assert td["security"] == ["bearer_sc"] and td["securityDefinitions"]["bearer_sc"]["scheme"] == "bearer"
     assert "workspace hull:" in output and "alpha shape:" in output and "3000 samples" in output
 
 
@@ -71,6 +74,8 @@ def _broken(tmp_path):
     (["ur10.urdf", "--calibration", "{d}/one.csv"], "1 pair given: calibration needs at least two"),
     (["ur10.urdf", "--frame", "real"], "real frame needs a calibration"),
     (["ur10.urdf", "--ee", "no_link"], "no link named 'no_link'"),
+    (["ur10.urdf", "--base-url", "http://127.0.0.1:8080/"], "--base-url must be the Thing's URL on the adapter"),
+    (["ur10.urdf", "--base-url", "http://127.0.0.1:8080/ur10", "--name", "arm"], "names the Thing 'ur10', not 'arm'"),
 ])
 def test_malformed_inputs_fail_with_a_message_naming_the_problem(tmp_path, args, problem):
     d = _broken(tmp_path)

@@ -9,8 +9,9 @@ import numpy as np
 import pybullet as pb
 import pytest
 import trimesh
-from tdschema import assert_valid_td
+from tdschema import assert_valid_td, assert_valid_tm
 
+from twinmesh.messages.relations import POINTS, SCENE, TWIN, WORKSPACE
 from twinmesh.robot.model import Robot
 from twinmesh.robot.surroundings import load_scene
 from twinmesh.robot.workspace import read_points_csv
@@ -19,7 +20,7 @@ from twinmesh.tdgen.generate import generate
 
 ROBOTS = ["franka_panda/panda.urdf", "kuka_iiwa/model.urdf", "xarm/xarm6_robot.urdf", "ur10.urdf"]
 SAMPLES = 4000
-BASE_URL = "http://lab.example:8080/things/robot/"
+BASE_URL = "http://lab.example:8080/robot/"  # the Thing "robot" on the adapter at http://lab.example:8080
 
 
 @pytest.fixture(scope="module", params=ROBOTS, ids=lambda u: u.split("/")[0].replace(".urdf", ""))
@@ -34,22 +35,27 @@ def generated(request, tmp_path_factory):
 def test_td_is_valid_against_the_official_schema(generated):
     _, _, td, _, _ = generated
     assert_valid_td(td)
-    assert td["@context"] == ["https://www.w3.org/2019/wot/td/v1", "https://www.w3.org/2022/wot/td/v1.1"]
-    assert td["id"].startswith("urn:twinmesh:robot:")
+    assert td["@context"] == ["https://www.w3.org/2019/wot/td/v1", "https://www.w3.org/2022/wot/td/v1.1",
+                              {"@language": "en", "qudt": "http://qudt.org/vocab/unit/"}]
+    assert td["id"] == "urn:twinmesh:robot:robot" and td["title"] == "robot"  # the base URL names the Thing
     assert td["securityDefinitions"] == {"nosec_sc": {"scheme": "nosec"}}
 
 
-def test_td_has_the_affordances_forms_and_links_of_spec_4(generated):
+def test_td_has_the_affordances_forms_and_links_the_adapter_serves(generated):
     _, _, td, _, _ = generated
+    url = BASE_URL.rstrip("/")
+    assert "base" not in td, "every href is absolute, as the adapter serves them"
     assert set(td["properties"]) == {"getJointposition", "getCartesianposition"}
     assert set(td["actions"]) == {"moveToJointPosition", "moveToCartesianPosition", "planMove", "stop"}
     for name, prop in td["properties"].items():
         assert prop["readOnly"] and prop["observable"]
-        assert [f["href"] for f in prop["forms"]] == [f"properties/{name}"] * 2
-        assert {op for f in prop["forms"] for op in np.atleast_1d(f["op"])} >= {"readproperty", "observeproperty"}
+        forms = {(f["href"], f.get("subprotocol")): f["op"] for f in prop["forms"]}
+        assert forms == {(f"{url}/properties/{name}", None): ["readproperty"],  # long-poll has its own href
+                         (f"{url}/properties/{name}/observable", "longpoll"): ["observeproperty", "unobserveproperty"],
+                         (f"{url}/properties/{name}/sse", "sse"): ["observeproperty", "unobserveproperty"]}
     for name, action in td["actions"].items():
         assert action["synchronous"] is True
-        assert action["forms"][0]["href"] == f"actions/{name}"
+        assert [f["href"] for f in action["forms"]] == [f"{url}/actions/{name}"]
     for name in ("moveToJointPosition", "moveToCartesianPosition"):
         action = td["actions"][name]
         assert action["input"]["required"] == list(action["input"]["properties"])
@@ -58,10 +64,28 @@ def test_td_has_the_affordances_forms_and_links_of_spec_4(generated):
     assert td["actions"]["moveToJointPosition"]["input"]["properties"] == td["properties"]["getJointposition"]["properties"]
     assert td["actions"]["moveToCartesianPosition"]["input"]["properties"] == \
         td["properties"]["getCartesianposition"]["properties"]
-    assert td["base"] == BASE_URL
-    assert {(link["rel"], link["href"], link["type"]) for link in td["links"]} == {
-        ("workspace", "workspace.stl", "model/stl"), ("dataset-points", "points.csv", "text/csv"),
-        ("scene", "scene.json", "application/json")}
+    assert "twinChanged" in td["events"] and {f["op"] if isinstance(f["op"], str) else f["op"][0]
+                                              for f in td["forms"]} >= {"readallproperties", "observeallproperties"}
+    assert {(link["rel"], link["href"], link["type"]) for link in td["links"]} >= {
+        (WORKSPACE, f"{url}/files/workspace.stl", "model/stl"), (POINTS, f"{url}/files/points.csv", "text/csv"),
+        (SCENE, f"{url}/files/scene.json", "application/json"), (TWIN, f"{url}/files/twin.json", "application/json")}
+
+
+def test_without_a_base_url_tdgen_writes_a_thing_model_valid_against_the_official_schema(tmp_path):
+    result = generate("ur10.urdf", None, 500, seed=1, out_dir=tmp_path, workers=1)
+    assert "td" not in result.files and not (tmp_path / "td.json").exists()
+    tm = json.loads(result.files["tm"].read_text())
+    assert_valid_tm(tm)
+    assert tm["@type"] == "tm:ThingModel" and "id" not in tm and tm["title"] == "ur10"
+    hrefs = [f["href"] for kind in ("properties", "actions", "events") for a in tm[kind].values() for f in a["forms"]]
+    assert hrefs and all(h.startswith("{{BASE_URL}}/ur10/") for h in hrefs)
+
+
+def test_a_base_url_that_names_no_thing_is_refused_before_sampling(tmp_path):
+    for bad in ("http://lab.example:8080", "http://lab.example:8080/", "lab.example/ur10"):
+        with pytest.raises(ValueError, match="base-url"):
+            generate("ur10.urdf", None, 500, out_dir=tmp_path / "x", base_url=bad)
+    assert not (tmp_path / "x").exists()
 
 
 def test_workspace_stl_is_a_watertight_hull_of_the_reported_volume(generated):
@@ -83,22 +107,22 @@ def test_cartesian_limits_are_the_collision_free_bounds(generated):
     fields = td["properties"]["getCartesianposition"]["properties"]
     free = positions[~collision]
     for i, axis in enumerate("xyz"):
-        assert fields[axis]["unit"] == "mm"
+        assert fields[axis]["unit"] == "qudt:MilliM"  # QUDT, prefix declared in @context
         assert fields[axis]["minimum"] == pytest.approx(free[:, i].min(), abs=1e-6)
         assert fields[axis]["maximum"] == pytest.approx(free[:, i].max(), abs=1e-6)
         assert result.low_mm[i] == pytest.approx(free[:, i].min(), abs=1e-6)
 
 
 def _urdf_limits(path) -> dict[str, tuple[str, float, float]]:
-    """Joint limits in deg / mm straight from the URDF XML."""
+    """Joint limits in deg / mm (QUDT units) straight from the URDF XML."""
     out = {}
     for j in ET.parse(path).getroot().findall("joint"):
         kind, limit = j.get("type"), j.find("limit")
         if kind == "continuous":
-            out[j.get("name")] = ("deg", -180.0, 180.0)
+            out[j.get("name")] = ("qudt:DEG", -180.0, 180.0)
         elif kind in ("revolute", "prismatic"):
             scale = 1000.0 if kind == "prismatic" else 180 / math.pi
-            out[j.get("name")] = ("mm" if kind == "prismatic" else "deg",
+            out[j.get("name")] = ("qudt:MilliM" if kind == "prismatic" else "qudt:DEG",
                                   float(limit.get("lower")) * scale, float(limit.get("upper")) * scale)
     return out
 

@@ -286,7 +286,9 @@ async function main() {
 
     let runner;
     try {
-        const td = await within(DEFAULT_TIMEOUT_MS, wot.requestThingDescription(tdUrl), `fetching ${tdUrl}`);
+        const td = tdUrl.startsWith("file:")  // a TD written to disk (twinmesh tdgen), as a file:// URL
+            ? JSON.parse(readFileSync(new URL(tdUrl), "utf8"))
+            : await within(DEFAULT_TIMEOUT_MS, wot.requestThingDescription(tdUrl), `fetching ${tdUrl}`);
         if (credentials) servient.addCredentials({ [td.id]: credentials });
         runner = new Runner(wot, td);
         await runner.consume();

@@ -11,18 +11,20 @@ from typing import cast
 import click
 
 from twinmesh.cli.exits import usage_exit
+from twinmesh.http.auth import Auth
+from twinmesh.http.tdrewrite import NOSEC
 from twinmesh.robot.calibration import CalibrationError, Model
 from twinmesh.robot.model import Robot, RobotError
 from twinmesh.robot.surroundings import SceneError
 from twinmesh.robot.workspace import WorkspaceError
 from twinmesh.robot.workspace_check import DEFAULT_K, DEFAULT_MAX_PROBABILITY, DEFAULT_RADIUS_MM, Workspace
 from twinmesh.tdgen.generate import DEFAULT_SAMPLES, Frame, generate
+from twinmesh.tdgen.td import slug
 
 USER_ERRORS = (RobotError, SceneError, CalibrationError, WorkspaceError)
 
 
-def _slug(name: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_" else "-" for c in name.lower()).strip("-") or "robot"
+SECURITY = {"nosec": NOSEC, "basic": Auth("basic", "").security(), "bearer": Auth("bearer", "").security()}
 
 
 @click.command("tdgen")
@@ -32,7 +34,10 @@ def _slug(name: str) -> str:
               help="Random joint configurations to sample.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed, same points).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), help="Output directory [default: td-<robot>].")
-@click.option("--base-url", help="Base URL the TD's forms and links are relative to.")
+@click.option("--base-url", metavar="URL", help="The Thing's URL on the HTTP adapter (http://HOST:PORT/<thing>): writes "
+              "td.json, exactly the TD served there. Without it: tm.json, a Thing Model with {{BASE_URL}} open.")
+@click.option("--security", type=click.Choice(["nosec", "basic", "bearer"]), default="nosec", show_default=True,
+              help="The adapter's HTTP security (twinmesh up --auth), as the TD declares it.")
 @click.option("--calibration", type=click.Path(dir_okay=False),
               help="CSV of twin_x,twin_y,twin_z,real_x,real_y,real_z pairs (mm).")
 @click.option("--calibration-model", type=click.Choice(["auto", "two-point", "per-axis", "affine"]),
@@ -41,20 +46,21 @@ def _slug(name: str) -> str:
               help="Frame of the TD's Cartesian data and of the artefacts (real needs --calibration).")
 @click.option("--ee", help="End-effector link [default: the end of the longest joint chain].")
 @click.option("--concave", is_flag=True, help="Also write an alpha shape, workspace-concave.stl.")
-@click.option("--title", help="TD title [default: the robot name].")
+@click.option("--name", help="Thing name, a slug [default: the base URL's last segment, else from the robot's name].")
 @click.option("--id", "thing_id", help="TD id, an absolute URI [default: urn:twinmesh:robot:<name>].")
 @click.option("--workers", type=click.IntRange(min=1), help="Processes for collision checking [default: all cores].")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir: str | None, base_url: str | None,
                   calibration: str | None, calibration_model: str, frame: str, ee: str | None, concave: bool,
-                  title: str | None, thing_id: str | None, workers: int | None, no_progress: bool) -> None:
+                  name: str | None, thing_id: str | None, workers: int | None, no_progress: bool, security: str) -> None:
     """Generate a robot's Thing Description and workspace artefacts from its URDF and its scene."""
     try:
         robot = Robot.load(urdf, ee=ee)
-        result = generate(robot, scene, samples, seed, Path(out_dir or f"td-{_slug(robot.name)}"), base_url,
-                          calibration, cast(Frame, frame), concave, progress=not no_progress, title=title,
-                          thing_id=thing_id, workers=workers, calibration_model=cast(Model, calibration_model))
-    except USER_ERRORS as exc:
+        result = generate(robot, scene, samples, seed, Path(out_dir or f"td-{slug(robot.name)}"), base_url,
+                          calibration, cast(Frame, frame), concave, progress=not no_progress, name=name,
+                          thing_id=thing_id, workers=workers, calibration_model=cast(Model, calibration_model),
+                          security=SECURITY[security])
+    except (*USER_ERRORS, ValueError) as exc:
         raise usage_exit(str(exc)) from None
     low, high = result.low_mm, result.high_mm
     click.echo(f"{robot.name}: {result.samples} samples, {result.collision_free} collision-free "

@@ -20,6 +20,7 @@ from urllib.parse import urljoin
 
 import msgspec
 
+from twinmesh.wot import units
 from twinmesh.wot.td import (
     JSON,
     TD_CONTEXT,
@@ -180,9 +181,10 @@ def directory_td(base: str, prefix: str) -> dict[str, Any]:
                 "description": "Retrieve all Thing Descriptions",
                 "type": "array", "items": {"type": "object"}, "readOnly": True, "observable": False,
                 "uriVariables": {
-                    "offset": {"title": "Number of TDs to skip before the page", "type": "integer",
+                    "offset": {"title": "Number of TDs to skip before the page", "type": "integer", "unit": units.NUMBER,
                                "minimum": 0, "default": 0},
-                    "limit": {"title": "Number of TDs in a page", "type": "integer", "minimum": 1},
+                    "limit": {"title": "Number of TDs in a page", "type": "integer", "minimum": 1,
+                              "unit": units.NUMBER},
                     "format": {"title": "Payload format", "type": "string", "enum": ["array"], "default": "array"},
                 },
                 "forms": [{"href": f"{base}/things{{?offset,limit,format}}", "op": "readproperty",

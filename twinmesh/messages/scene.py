@@ -11,6 +11,8 @@ from typing import Any, Literal
 
 import msgspec
 
+from twinmesh.messages import relations
+
 WORLD_THING = "world"
 SCENE_FILE = "scene.json"
 POSES_PROPERTY = "poses"
@@ -60,8 +62,8 @@ class Poses(msgspec.Struct, omit_defaults=True):
 
 # --- robots on the mesh (issue: robots as Things, TDs generated on the mesh) -----------------------
 TWIN_FILE = "twin.json"
-TWIN_REL = "twin"        # TD link to files/twin.json: what the tdgen service generates from
-MODEL_REL = "model"      # TD link to the robot's URDF file (drawn by the recorder)
+TWIN_REL = relations.TWIN    # TD link to files/twin.json: what the tdgen service generates from
+MODEL_REL = relations.MODEL  # TD link to the robot's URDF file (drawn by the recorder)
 
 
 class TwinDescription(msgspec.Struct, omit_defaults=True, kw_only=True):

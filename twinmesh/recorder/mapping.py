@@ -26,6 +26,7 @@ from typing import Any
 import msgspec
 import rerun as rr
 
+from twinmesh.wot import units
 from twinmesh.wot.td import DataSchema, ThingDescription
 
 MESH_LOG = "mesh/log"
@@ -111,7 +112,10 @@ def td_markdown(thing: str, td: ThingDescription) -> str:
 
 def _affordance_note(a: Any) -> str:
     schema = a if isinstance(a, DataSchema) else getattr(a, "data", None)
-    kind = f" ({schema.type}{', ' + schema.unit if schema.unit else ''})" if schema is not None and schema.type else ""
+    kind = ""
+    if schema is not None and schema.type:
+        unit = units.symbol(schema.unit)
+        kind = f" ({schema.type}{', ' + unit if unit else ''})"
     title = f" — {a.title}" if getattr(a, "title", None) else ""
     return kind + title
 
@@ -148,7 +152,7 @@ def value_entries(path: str, name: str, value: Any, schema: DataSchema | None) -
 
 
 def _series_name(name: str, schema: DataSchema | None) -> str:
-    unit = schema.unit if schema is not None else None
+    unit = units.symbol(schema.unit) if schema is not None else ""
     return f"{name} ({unit})" if unit else name
 
 

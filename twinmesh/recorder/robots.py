@@ -1,9 +1,9 @@
 """Robot Things in a Rerun recording: each drawn from its URDF, animated, with its workspace (SPEC §6).
 
-A robot Thing (`twinmesh.messages.scene.TwinDescription`) links `twin.json` (`rel: "twin"`: its base pose
-in the scene frame, its frame and calibration) and its URDF (`rel: "model"`); once its workspace is
-generated, also the sampled points (`rel: "dataset-points"`, CSV `x,y,z,collision,<joints>`) and the
-hull (`rel: "workspace"`, STL), both in mm in the robot's base frame. The recorder's fetcher thread
+A robot Thing (`twinmesh.messages.scene.TwinDescription`) links `twin.json` (`relations.TWIN`: its base pose
+in the scene frame, its frame and calibration) and its URDF (`rel: "describedby"`); once its workspace is
+generated, also the sampled points (`relations.POINTS`, CSV `x,y,z,collision,<joints>`) and the
+hull (`relations.WORKSPACE`, STL), both in mm in the robot's base frame. The recorder's fetcher thread
 fetches and parses them (`RobotFiles`, `Workspace.from_files`); `RobotDrawer`, owned by the writer
 thread, draws them into the RecordingStream.
 
@@ -38,15 +38,17 @@ import msgspec
 import numpy as np
 import rerun as rr
 
+from twinmesh.messages import relations
 from twinmesh.messages.scene import MODEL_REL, TWIN_FILE, TWIN_REL, Pose, TwinDescription
 from twinmesh.recorder.mapping import Entry
 from twinmesh.recorder.scene import BATCH_AGE, BATCH_ROWS, WORLD, Robot, SampleBatch, SceneDrawer, thing_robot_path
 from twinmesh.robot.model import ROBOTS_DIR
+from twinmesh.wot import units
 from twinmesh.wot.td import ThingDescription
 
 JOINTS_PROPERTY = "getJointposition"
-POINTS_REL = "dataset-points"
-WORKSPACE_REL = "workspace"
+POINTS_REL = relations.POINTS
+WORKSPACE_REL = relations.WORKSPACE
 FREE_COLOUR = (40, 180, 70)
 COLLIDING_COLOUR = (220, 50, 40)
 HULL_COLOUR = (70, 140, 230, 60)  # RGBA: the alpha makes it see-through
@@ -56,6 +58,7 @@ POINT_RADIUS = rr.Radius.ui_points(1.5)  # on screen, whatever the zoom
 _UNITS = {"deg": (math.pi / 180, "rad"), "degree": (math.pi / 180, "rad"), "degrees": (math.pi / 180, "rad"),
           "rad": (1.0, "rad"), "radian": (1.0, "rad"), "radians": (1.0, "rad"),
           "mm": (1e-3, "m"), "millimetre": (1e-3, "m"), "millimeter": (1e-3, "m"), "m": (1.0, "m")}
+_UNITS.update({unit.lower(): _UNITS[units.symbol(unit)] for unit in (units.DEGREE, units.MILLIMETRE, units.METRE)})
 _REVOLUTE, _PRISMATIC = _UNITS["deg"], _UNITS["mm"]  # SPEC §4's units when a TD does not say
 
 

@@ -1,8 +1,10 @@
-"""Assemble a robot's Thing Description (SPEC §4) from its joints and its sampled workspace.
+"""A robot's Thing Description (SPEC §4), built once for every place that needs it.
 
-Built on the mesh's TD model (`twinmesh.wot.td`), so what tdgen writes is what the mesh serves. Forms are
-HTTP-style and relative (`properties/getJointposition`); `base` is set when a base URL is given, and
-the HTTP adapter rewrites forms to its own address anyway.
+`robot_td` is the TD a robot Thing serves on the mesh (relative forms and links: `files/...`); the
+tdgen service writes it and the robot serves it as it is. `served_td` is what the HTTP adapter
+then serves at a Thing URL (the adapter's own rewriting, `twinmesh.http.tdrewrite`), and
+`thing_model` the same with `{{BASE_URL}}` left open: a WoT Thing Model (TD 1.1 §10) for when no
+base URL is known. So `twinmesh tdgen` writes exactly what a running robot serves.
 """
 from __future__ import annotations
 
@@ -10,15 +12,39 @@ import re
 
 import numpy as np
 
+from twinmesh.http.tdrewrite import NOSEC, Security, http_td
+from twinmesh.messages import relations
+from twinmesh.messages.scene import TWIN_FILE
 from twinmesh.robot.model import Robot
-from twinmesh.wot.td import JSON, ActionAffordance, DataSchema, Form, Link, PropertyAffordance, ThingDescription
+from twinmesh.wot import units
+from twinmesh.wot.td import (
+    JSON,
+    TD_CONTEXT,
+    ActionAffordance,
+    DataSchema,
+    EventAffordance,
+    Form,
+    Link,
+    PropertyAffordance,
+    ThingDescription,
+    decode_td,
+    zenoh_forms,
+)
 
-CONTEXT = ["https://www.w3.org/2019/wot/td/v1", "https://www.w3.org/2022/wot/td/v1.1"]
+CONTEXT = TD_CONTEXT
 ARTEFACTS = {  # file name -> (rel, media type)
-    "workspace.stl": ("workspace", "model/stl"),
-    "points.csv": ("dataset-points", "text/csv"),
-    "scene.json": ("scene", "application/json"),
+    "workspace.stl": (relations.WORKSPACE, "model/stl"),
+    "points.csv": (relations.POINTS, "text/csv"),
+    "scene.json": (relations.SCENE, "application/json"),
 }
+URDF_TYPE = "application/xml"
+TWIN_CHANGED = "twinChanged"
+BASE_URL = "{{BASE_URL}}"  # the Thing Model's placeholder for the adapter's address
+
+
+def slug(name: str) -> str:
+    """A Thing name from a robot name: `lbr_iiwa_14_r820` -> `lbr-iiwa-14-r820`."""
+    return re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-") or "robot"
 
 
 def robot_id(name: str) -> str:
@@ -33,14 +59,14 @@ def _number(unit: str, low: float, high: float) -> DataSchema:
 def joint_schema(robot: Robot) -> DataSchema:
     """One number per main joint: deg (revolute, continuous) or mm (prismatic), within the limits."""
     lows, highs = robot.to_user_units(robot.lows()), robot.to_user_units(robot.highs())
-    fields = {j.name: _number("mm" if j.type == "prismatic" else "deg", lo, hi)
+    fields = {j.name: _number(joint_unit(j.type), lo, hi)
               for j, lo, hi in zip(robot.joints, lows, highs)}
     return DataSchema(type="object", properties=fields, required=list(fields))
 
 
 def cartesian_schema(low: np.ndarray, high: np.ndarray) -> DataSchema:
     """x, y, z in mm within the bounds of the collision-free points."""
-    fields = {axis: _number("mm", lo, hi) for axis, lo, hi in zip("xyz", low, high)}
+    fields = {axis: _number(units.MILLIMETRE, lo, hi) for axis, lo, hi in zip("xyz", low, high)}
     return DataSchema(type="object", properties=fields, required=list(fields))
 
 
@@ -60,13 +86,25 @@ def _action(schema: DataSchema | None, name: str, description: str, output: Data
                             forms=[Form(href=f"actions/{name}", op="invokeaction", contentType=JSON)])
 
 
-def _numbers(unit: str | None = None) -> DataSchema:
+def _numbers(unit: str) -> DataSchema:
     return DataSchema(type="array", items=DataSchema(type="number", unit=unit))
+
+
+def joint_unit(joint_type: str) -> str:
+    """SPEC §4: deg for revolute (and continuous) joints, mm for prismatic ones."""
+    return units.MILLIMETRE if joint_type == "prismatic" else units.DEGREE
+
+
+def _joint_values(robot: Robot) -> DataSchema:
+    """One configuration in joint order, each value with its joint's unit."""
+    n = len(robot.joints)
+    return DataSchema(type="array", items=[DataSchema(type="number", unit=joint_unit(j.type)) for j in robot.joints],
+                      minItems=n, maxItems=n)
 
 
 def move_output_schema(robot: Robot) -> DataSchema:
     """What a move (or its dry run) answers: the collision-free path, where it ends, how it was found."""
-    xyz = {axis: DataSchema(type="number", unit="mm") for axis in "xyz"}
+    xyz = {axis: DataSchema(type="number", unit=units.MILLIMETRE) for axis in "xyz"}
     names = [j.name for j in robot.joints]
     return DataSchema(type="object", required=["path", "reached", "error_mm", "method", "planning_ms"], properties={
         "path": DataSchema(type="object", required=["joints", "points", "times"], description=(
@@ -74,19 +112,19 @@ def move_output_schema(robot: Robot) -> DataSchema:
             f"order of `joints` ({', '.join(names)}; deg for revolute, mm for prismatic joints); `times` in "
             "simulated seconds from the start. The arm stops at every waypoint."), properties={
             "joints": DataSchema(type="array", items=DataSchema(type="string", enum=names)),
-            "points": DataSchema(type="array", items=_numbers()),
-            "times": _numbers("s"),
-            "tip": DataSchema(type="array", items=_numbers("mm"), description=(
+            "points": DataSchema(type="array", items=_joint_values(robot)),
+            "times": _numbers(units.SECOND),
+            "tip": DataSchema(type="array", items=_numbers(units.MILLIMETRE), description=(
                 "The end effector along the path (mm, the TD's frame), several points per segment: what "
                 "the move sweeps, for drawing."))}),
         "reached": DataSchema(type="object", properties=xyz, required=list(xyz),
                               description="Where the end effector ends (mm, the TD's frame)."),
-        "error_mm": DataSchema(type="number", unit="mm", minimum=0.0,
+        "error_mm": DataSchema(type="number", unit=units.MILLIMETRE, minimum=0.0,
                                description="Distance from the Cartesian target (0 for joint moves)."),
         "method": DataSchema(type="string", enum=["straight", "planned"],
                              description="straight: the direct joint-space path was free; planned: by OMPL."),
-        "planning_ms": DataSchema(type="number", unit="ms", minimum=0.0),
-        "collision_probability": DataSchema(type="number", minimum=0.0, maximum=1.0, description=(
+        "planning_ms": DataSchema(type="number", unit=units.MILLISECOND, minimum=0.0),
+        "collision_probability": DataSchema(type="number", unit=units.UNITLESS, minimum=0.0, maximum=1.0, description=(
             "Share of colliding samples among the target's nearest sampled points (information; Cartesian "
             "targets with sampled neighbours only)."))})
 
@@ -98,19 +136,53 @@ def plan_input_schema(joints: DataSchema, cartesian: DataSchema) -> DataSchema:
 
 
 FRAMES = {"twin": "the robot's base frame", "real": "the real robot's frame (calibrated)"}
+POLICY = ("Every move follows a collision-free joint path (straight where that is free, else planned with OMPL in "
+          "the live scene); Cartesian moves are refused outside the workspace hull{gate}, where no joint "
+          "configuration reaches, where every configuration found collides, or where no path is found.")
 
 
-def build_td(robot: Robot, low: np.ndarray, high: np.ndarray, *, frame: str = "twin", title: str | None = None,
-             thing_id: str | None = None, description: str = "", base_url: str | None = None) -> dict:
-    """The TD as a JSON-ready dict; `low`/`high` are the collision-free bounds (mm, in `frame`)."""
-    joints, cartesian = joint_schema(robot), cartesian_schema(low, high)
+def policy(max_collision_probability: float | None = None) -> str:
+    """How the robot decides to move, for its TD's description."""
+    gate = ("" if max_collision_probability is None else
+            f", where the collision probability of the sampled neighbours exceeds {max_collision_probability:g}")
+    return POLICY.format(gate=gate)
+
+
+def _links(urdf_file: str, generated: bool) -> list[Link]:
+    links = [Link(href=f"files/{name}", rel=rel, type=media) for name, (rel, media) in ARTEFACTS.items()
+             if generated]
+    return links + [Link(href=f"files/{TWIN_FILE}", rel=relations.TWIN, type=JSON),
+                    Link(href=f"files/{urdf_file}", rel=relations.MODEL, type=URDF_TYPE)]
+
+
+def twin_changed_event() -> EventAffordance:
+    return EventAffordance(
+        title="Twin changed", description="The robot's surroundings changed: its workspace, TD and files are being "
+        "regenerated (the TD on the mesh is replaced when they are ready).",
+        data=DataSchema(type="object", required=["robot", "version"], properties={
+            "robot": DataSchema(type="string"), "version": DataSchema(type="integer", minimum=0)}),
+        forms=[Form(href=f"events/{TWIN_CHANGED}", op=["subscribeevent", "unsubscribeevent"], contentType=JSON)])
+
+
+def robot_td(robot: Robot, low: np.ndarray | None, high: np.ndarray | None, *, name: str, frame: str = "twin",
+             thing_id: str | None = None, description: str = "", version: int = 0) -> dict:
+    """The TD robot Thing `name` serves on the mesh, as a JSON-ready dict.
+
+    `low`/`high` are the collision-free bounds (mm, in `frame`); None while the workspace is not
+    generated yet (Cartesian values then have no bounds, and the workspace files are not linked).
+    """
+    generated = low is not None and high is not None
+    joints = joint_schema(robot)
+    cartesian = (cartesian_schema(low, high) if low is not None and high is not None else
+                 DataSchema(type="object", required=list("xyz"),
+                            properties={axis: DataSchema(type="number", unit=units.MILLIMETRE) for axis in "xyz"}))
     output = move_output_schema(robot)
     td = ThingDescription(
-        title=title or robot.name,
+        title=name,
         context=list(CONTEXT),
-        id=thing_id or robot_id(robot.name),
+        id=thing_id or robot_id(name),
         description=description or None,
-        base=base_url,
+        version={"instance": str(version)},
         properties={
             "getJointposition": _property(joints, "getJointposition", "Joint values: deg for revolute joints, "
                                           "mm for prismatic ones."),
@@ -137,6 +209,26 @@ def build_td(robot: Robot, low: np.ndarray, high: np.ndarray, *, frame: str = "t
                             DataSchema(type="object", required=["stopped"],
                                        properties={"stopped": DataSchema(type="boolean")})),
         },
-        links=[Link(href=name, rel=rel, type=media) for name, (rel, media) in ARTEFACTS.items()],
+        events={TWIN_CHANGED: twin_changed_event()},
+        links=_links(robot.urdf_path.name, generated),
     )
     return td.to_dict()
+
+
+def served_td(mesh_td: dict, thing_url: str, security: Security = NOSEC) -> dict:
+    """What the HTTP adapter serves at `thing_url` (`<adapter>/<thing>`) for a robot serving `mesh_td`."""
+    base, _, thing = thing_url.rstrip("/").rpartition("/")
+    if not base or not thing:
+        raise ValueError(f"a Thing URL is <adapter base>/<thing name>, not {thing_url!r}")
+    on_mesh = zenoh_forms(decode_td(mesh_td), "wot", thing).to_dict()  # as twinmesh.fabric.server serves it
+    return http_td(decode_td(on_mesh), thing, base, security, on_mesh)
+
+
+def thing_model(mesh_td: dict, thing: str, security: Security = NOSEC) -> dict:
+    """A Thing Model (TD 1.1 §10) of the robot: the served TD with the adapter's address left as the
+    placeholder `{{BASE_URL}}`, and no `id` (an instance's own)."""
+    tm = served_td(mesh_td, f"{BASE_URL}/{thing}", security)
+    tm.pop("id", None)
+    version = tm.pop("version", None) or {}
+    return {"@context": tm.pop("@context"), "@type": "tm:ThingModel", **tm,
+            "version": {"model": version.get("instance", "0")}}

@@ -9,11 +9,13 @@ import threading
 from typing import Callable
 
 from twinmesh.fabric.keys import Keys
+from twinmesh.wot import units
 from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 
 LIGHTS = ("light-left", "light-right")
 
-_COLOR = {"type": "array", "items": {"type": "number", "minimum": 0, "maximum": 1}, "minItems": 3, "maxItems": 3}
+_CHANNEL = {"type": "number", "minimum": 0, "maximum": 1, "unit": units.UNITLESS}
+_COLOR = {"type": "array", "items": _CHANNEL, "minItems": 3, "maxItems": 3}
 
 
 def light_td(name: str) -> ThingDescription:
@@ -34,7 +36,7 @@ def light_td(name: str) -> ThingDescription:
             "setColor": {
                 "title": "Set colour", "safe": False, "idempotent": True, "synchronous": True,
                 "input": {"type": "object", "required": ["r", "g", "b"], "properties": {
-                    c: {"type": "number", "minimum": 0, "maximum": 1} for c in "rgb"}},
+                    c: _CHANNEL for c in "rgb"}},
                 "output": {"title": "The new colour", **_COLOR},
             },
         },

@@ -17,6 +17,7 @@ from twinmesh.fabric.keys import Keys
 from twinmesh.fabric.server import ExposedThing
 from twinmesh.fabric.state_publisher import StatePublisher
 from twinmesh.sim.pan_tilt import MAX_PAN_SPEED, REACH, ColorSeen, PanTilt
+from twinmesh.wot import units
 from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 
 TD = Path(__file__).parent / "tds" / "pan-tilt.json"
@@ -32,9 +33,9 @@ DETECT_COLOR: dict[str, Any] = {
                    f"\"\" for nothing) and distance (m, left out when nothing is seen).",
     "data": {"type": "object", "required": ["color", "object"], "properties": {
         "color": {"type": "array", "minItems": 3, "maxItems": 3,
-                  "items": {"type": "number", "minimum": 0, "maximum": 255}},
+                  "items": {"type": "number", "minimum": 0, "maximum": 255, "unit": units.UNITLESS}},
         "object": {"type": "string", "description": "The body seen; \"\" when nothing is seen"},
-        "distance": {"type": "number", "minimum": 0, "maximum": REACH, "unit": "m"}}},
+        "distance": {"type": "number", "minimum": 0, "maximum": REACH, "unit": units.METRE}}},
 }
 
 

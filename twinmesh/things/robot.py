@@ -8,13 +8,15 @@ plus the event `twinChanged {robot, version}` and the files `twin.json` (its
 
 1. before joining, the robot subscribes to the service's `generated` event;
 2. it joins with a provisional TD (joints with their limits, Cartesian values without bounds,
-   links rel=twin and rel=model only); Cartesian moves answer 503 `workspace-generating`;
+   links to twin.json and the URDF only); Cartesian moves answer 503 `workspace-generating`;
 3. the service sees it join, reads `files/twin.json`, generates (or finds in its cache) and emits
    `generated {robot, hash, version}`;
 4. the robot fetches `<robot>.td.json`, `.points.csv`, `.workspace.stl`, `.scene.json` from the
    service, keeps the points for its checks, serves the three artefacts as its own files and
-   replaces its TD (`update_td`: observers of `<prefix>/<robot>/td` see it), links rel
-   workspace/dataset-points/scene/twin/model with relative hrefs `files/...`.
+   replaces its TD with the service's (`update_td`: observers of `<prefix>/<robot>/td` see it),
+   which links all five files with relative hrefs `files/...` (relations: twinmesh.messages.relations).
+
+Both TDs come from `twinmesh.tdgen.td.robot_td`, the builder `twinmesh tdgen` uses offline.
 
 When the surroundings change (`RobotTwin.set_scene`), twin.json changes, `twinChanged` goes out,
 the service regenerates and step 4 repeats. Joint states are published while the robot moves, at
@@ -25,7 +27,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import logging
-import re
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack
@@ -38,7 +39,8 @@ from twinmesh.fabric.client import MeshClient
 from twinmesh.fabric.server import ExposedThing
 from twinmesh.fabric.settings import MeshSettings
 from twinmesh.fabric.state_publisher import StatePublisher
-from twinmesh.messages.scene import MODEL_REL, TWIN_FILE, TWIN_REL, TwinDescription
+from twinmesh.messages.scene import TWIN_FILE, TwinDescription
+from twinmesh.tdgen.td import ARTEFACTS, TWIN_CHANGED, URDF_TYPE, policy, robot_td, slug
 from twinmesh.wot.problem import BadInput, Problem
 from twinmesh.wot.td import ThingDescription, decode_td
 
@@ -48,21 +50,9 @@ if TYPE_CHECKING:  # pybullet loads with twinmesh.sim.robot: `twinmesh --help` n
 log = logging.getLogger(__name__)
 
 TDGEN = "tdgen"               # the service's Thing name (twinmesh.things.tdgen.THING)
-TWIN_CHANGED = "twinChanged"  # twinmesh.things.tdgen.TWIN_CHANGED
-URDF_TYPE = "application/xml"
 STATE_RATE = 20.0             # joint-state publications per wall second while moving, at most
-ARTEFACTS = {  # our file name -> (rel, media type); the service's file is `<robot>.<name>`
-    "workspace.stl": ("workspace", "model/stl"),
-    "points.csv": ("dataset-points", "text/csv"),
-    "scene.json": ("scene", "application/json"),
-}
 CARTESIAN = ("getCartesianposition", "moveToCartesianPosition")
 DEFAULT_SAMPLES = 80_000
-
-
-def slug(name: str) -> str:
-    """A Thing name from a robot name: `lbr_iiwa_14_r820` -> `lbr-iiwa-14-r820`."""
-    return re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-") or "robot"
 
 
 def urdf_reference(path: Path) -> str:
@@ -77,61 +67,26 @@ def urdf_reference(path: Path) -> str:
     return str(path)
 
 
-# --- TDs -----------------------------------------------------------------------------------------
-def _links(twin: RobotTwin, generated: bool) -> list[dict[str, str]]:
-    links = [{"href": f"files/{name}", "rel": rel, "type": media} for name, (rel, media) in ARTEFACTS.items()
-             if generated]
-    links += [{"href": f"files/{TWIN_FILE}", "rel": TWIN_REL, "type": "application/json"},
-              {"href": f"files/{twin.robot.urdf_path.name}", "rel": MODEL_REL, "type": URDF_TYPE}]
-    return links
-
-
-def _finish(td: dict[str, Any], twin: RobotTwin, generated: bool) -> ThingDescription:
-    td.pop("base", None)
-    td["links"] = _links(twin, generated)
-    td["events"] = {TWIN_CHANGED: {
-        "title": "Twin changed", "description": "The robot's surroundings changed: its workspace, TD and files "
-        "are being regenerated (the TD on the mesh is replaced when they are ready).",
-        "data": {"type": "object", "required": ["robot", "version"], "properties": {
-            "robot": {"type": "string"}, "version": {"type": "integer", "minimum": 0}}},
-        "forms": [{"href": f"events/{TWIN_CHANGED}", "op": ["subscribeevent", "unsubscribeevent"],
-                   "contentType": "application/json"}]}}
-    return decode_td(td)
-
-
+# --- TDs (built by twinmesh.tdgen.td, the one builder of robot TDs) -------------------------------
 def provisional_td(twin: RobotTwin) -> ThingDescription:
     """The TD before the workspace is known: joint limits, Cartesian values without bounds."""
-    import numpy as np
-
-    from twinmesh.tdgen.td import build_td, robot_id
-
-    td = build_td(twin.robot, np.zeros(3), np.zeros(3), frame=twin.frame.name, title=twin.name,
-                  thing_id=robot_id(twin.name),
-                  description=f"{twin.robot.name} (twinmesh twin, from {twin.robot.urdf_path.name}). Its workspace "
-                  "is being generated by the tdgen service: Cartesian bounds and the links to the workspace hull, "
-                  "sampled points and scene follow when it is ready (this TD is then replaced); until then "
-                  "Cartesian moves answer 503.")
-    cartesian = [td["properties"]["getCartesianposition"], td["actions"]["moveToCartesianPosition"]["input"],
-                 td["actions"]["planMove"]["input"]]
-    for schema in cartesian:
-        for axis in "xyz":
-            schema["properties"][axis].pop("minimum", None)
-            schema["properties"][axis].pop("maximum", None)
-    return _finish(td, twin, generated=False)
+    return decode_td(robot_td(
+        twin.robot, None, None, name=twin.name, frame=twin.frame.name, version=twin.version,
+        description=f"{twin.robot.name} (twinmesh twin, from {twin.robot.urdf_path.name}). Its workspace is being "
+        "generated by the tdgen service: Cartesian bounds and the links to the workspace hull, sampled points and "
+        "scene follow when it is ready (this TD is then replaced); until then Cartesian moves answer 503. "
+        + policy(twin.max_collision_probability)))
 
 
-def generated_td(td_json: bytes, twin: RobotTwin, hash: str, version: int) -> ThingDescription:
-    """The TD the tdgen service generated for twin `version`, with this robot's links and events."""
+def generated_td(td_json: bytes, twin: RobotTwin, version: int) -> ThingDescription:
+    """The TD the tdgen service generated for twin `version` of this robot, served as it is but for
+    that version (the service's cache does not hold it) and the robot's own move policy when it is
+    not the default one (a collision-probability gate)."""
     td = msgspec.json.decode(td_json)
     td["version"] = {"instance": str(version)}
-    gate = ("" if twin.max_collision_probability is None else
-            f", where the collision probability of the sampled neighbours exceeds {twin.max_collision_probability:g}")
-    td["description"] = (f"{td.get('description', '')} Generated by the tdgen service (twin version {version}, "
-                         f"hash {hash}). Every move follows a collision-free joint path (straight where that is "
-                         "free, else planned with OMPL in the live scene); Cartesian moves are refused outside the "
-                         f"workspace hull{gate}, where no joint configuration reaches, where every configuration "
-                         "found collides, or where no path is found.").strip()
-    return _finish(td, twin, generated=True)
+    if twin.max_collision_probability is not None:
+        td["description"] = td.get("description", "").replace(policy(), policy(twin.max_collision_probability))
+    return decode_td(td)
 
 
 # --- the Thing -----------------------------------------------------------------------------------
@@ -250,7 +205,7 @@ class RobotThing:
             from twinmesh.sim.robot import workspace_from_csv
 
             workspace = workspace_from_csv(files["points.csv"])
-            td = generated_td(files["td.json"], self.twin, hash, version)
+            td = generated_td(files["td.json"], self.twin, version)
         except (Problem, ValueError, msgspec.DecodeError, msgspec.ValidationError) as e:
             log.warning("%s: cannot use the generated artefacts (%s): %s", self.name, hash, e)
             return

@@ -39,13 +39,14 @@ from twinmesh.fabric.client import MeshClient
 from twinmesh.fabric.server import ExposedThing
 from twinmesh.fabric.settings import MeshSettings
 from twinmesh.messages.scene import TWIN_REL, TwinDescription
+from twinmesh.wot import units
 from twinmesh.wot.problem import NotFound, Problem, Unavailable
 from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 
 log = logging.getLogger(__name__)
 
 THING = "tdgen"
-GENERATOR_VERSION = "1"   # bump when `generate` writes something else for the same inputs
+GENERATOR_VERSION = "2"   # bump when `generate` writes something else for the same inputs
 TWIN_CHANGED = "twinChanged"  # the event a robot emits when its twin changed
 ARTEFACTS = {  # file suffix -> content type; the generated file is named like the suffix
     "td.json": "application/json",
@@ -85,8 +86,8 @@ def service_td() -> ThingDescription:
     status = {"type": "object", "properties": {
         "status": {"type": "string", "enum": ["generating", "ready", "failed"]},
         "version": {"type": "integer", "minimum": 0}, "hash": {"type": "string"},
-        "seconds": {"type": "number", "minimum": 0, "unit": "s"}, "cached": {"type": "boolean"},
-        "progress": {"type": "number", "minimum": 0, "maximum": 1,
+        "seconds": {"type": "number", "minimum": 0, "unit": units.SECOND}, "cached": {"type": "boolean"},
+        "progress": {"type": "number", "minimum": 0, "maximum": 1, "unit": units.UNITLESS,
                      "description": "Share of the workspace samples checked so far, while generating"},
         "error": {"type": "string"}}}
     return decode_td({
@@ -306,8 +307,10 @@ class TdgenService:
         tmp = out.with_name(f".{out.name}.{os.getpid()}.{threading.get_ident()}")
         shutil.rmtree(tmp, ignore_errors=True)
         try:
-            generate(robot, scene_of(twin), twin.samples, twin.seed, tmp, calibration=calibration, frame=twin.frame,
-                     title=twin.robot, thing_id=robot_id(twin.robot), workers=workers, on_progress=on_progress)
+            result = generate(robot, scene_of(twin), twin.samples, twin.seed, tmp, calibration=calibration,
+                              frame=twin.frame, name=twin.robot, thing_id=robot_id(twin.robot), workers=workers,
+                              on_progress=on_progress)
+            (tmp / "td.json").write_bytes(msgspec.json.encode(result.td))  # the TD the robot serves on the mesh
             (tmp / "twin.json").write_bytes(msgspec.json.encode(twin))
             (tmp / DONE).write_text(GENERATOR_VERSION + "\n")
             try:

@@ -37,16 +37,18 @@ import msgspec
 
 from twinmesh.fabric.keys import Keys
 from twinmesh.fabric.server import ExposedThing
+from twinmesh.messages import relations
 from twinmesh.messages.scene import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription
 from twinmesh.sim.bodies import pose as _pose
 from twinmesh.sim.layouts.obstacles import OBSTACLE_SCHEMA, Obstacle
 from twinmesh.sim.world import MAX_SPEED, MIN_SPEED, Snapshot, World
+from twinmesh.tdgen.td import URDF_TYPE
+from twinmesh.wot import units
 from twinmesh.wot.problem import BadInput
 from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 
 log = logging.getLogger(__name__)
 
-URDF_TYPE = "application/xml"
 POSES_RATE = 20.0  # publications per wall second, at most
 
 _OBJECT = {"type": "object"}
@@ -96,7 +98,7 @@ def world_td(scene: SimulatedScene, version: int = 0) -> ThingDescription:
             "something changed, at most 20 times per wall second and always once more when a motion ends; "
             "joints per robot (rad or m), bodies: cubes and robot bases ([[x,y,z],[qx,qy,qz,qw]], m, scene frame; "
             "the Dobot's base moves along its track), states per device. Files: scene.json (the scene "
-            "description), the robots' URDFs (links rel=model, anchored at each robot's Thing)."
+            "description), the robots' URDFs (links rel=describedby, anchored at each robot's Thing)."
             + (" Box obstacles can be added and removed (addObstacle, removeObstacle); the robots then check "
                "their moves against them at once and their workspaces and TDs are regenerated; this TD is "
                "re-published with a new version so that observers reload scene.json." if takes_obstacles else "")),
@@ -104,14 +106,15 @@ def world_td(scene: SimulatedScene, version: int = 0) -> ThingDescription:
             POSES_PROPERTY: {
                 "title": "Poses", "type": "object", "readOnly": True, "observable": True,
                 "required": ["time"],
-                "properties": {"time": {"type": "number", "minimum": 0, "unit": "s"},
+                "properties": {"time": {"type": "number", "minimum": 0, "unit": units.SECOND},
                                "joints": _OBJECT, "bodies": _OBJECT, "states": _OBJECT},
             },
             "simTime": {"title": "Simulated time", "description": "Seconds of simulated time since the world "
-                        "started.", "type": "number", "minimum": 0, "unit": "s", "readOnly": True},
+                        "started.", "type": "number", "minimum": 0, "unit": units.SECOND, "readOnly": True},
             "speed": {"title": "Simulation speed", "description": "Simulated seconds per wall second; 0 means "
                       f"as fast as the CPU allows (twinmesh up --speed max); otherwise {MIN_SPEED:g} to "
-                      f"{MAX_SPEED:g}.", "type": "number", "minimum": 0, "maximum": MAX_SPEED, "observable": True},
+                      f"{MAX_SPEED:g}.", "type": "number", "minimum": 0, "maximum": MAX_SPEED, "unit": units.UNITLESS,
+                      "observable": True},
             "stepping": {"title": "Simulation running", "description": "Whether the simulation steps. If it ever "
                          "stops, the world's process ends and every device of it leaves the mesh.",
                          "type": "boolean", "readOnly": True},
@@ -125,12 +128,13 @@ def world_td(scene: SimulatedScene, version: int = 0) -> ThingDescription:
                 "stay in the warehouse queue; the others are set aside on the table, out of every device's "
                 "reach (0: an empty warehouse).",
                 "input": {"type": "object", "required": ["cubes"],
-                          "properties": {"cubes": {"type": "integer", "minimum": 0, "maximum": n}}},
+                          "properties": {"cubes": {"type": "integer", "minimum": 0, "maximum": n,
+                                                    "unit": units.NUMBER}}},
                 "safe": False, "idempotent": True, "synchronous": True,
             },
         },
-        "links": [{"rel": "scene", "href": f"files/{SCENE_FILE}", "type": "application/json"}]
-        + [{"rel": "model", "href": f"files/{urdf_file(robot)}", "type": URDF_TYPE, "anchor": thing_id(robot)}
+        "links": [{"rel": relations.SCENE, "href": f"files/{SCENE_FILE}", "type": "application/json"}]
+        + [{"rel": relations.MODEL, "href": f"files/{urdf_file(robot)}", "type": URDF_TYPE, "anchor": thing_id(robot)}
            for robot in scene.robot_urdfs()],
     }
     if takes_obstacles:

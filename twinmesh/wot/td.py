@@ -12,10 +12,12 @@ from typing import Any, Literal
 
 import msgspec
 
+from twinmesh.wot.units import PREFIX, QUDT_UNITS
+
 TD_CONTEXT: list[Any] = [
     "https://www.w3.org/2019/wot/td/v1",
     "https://www.w3.org/2022/wot/td/v1.1",
-    {"@language": "en"},
+    {"@language": "en", PREFIX: QUDT_UNITS},  # units: twinmesh.wot.units
 ]
 NOSEC: dict[str, dict[str, Any]] = {"nosec_sc": {"scheme": "nosec"}}
 JSON = "application/json"

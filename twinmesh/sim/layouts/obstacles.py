@@ -15,6 +15,7 @@ import pybullet as pb
 
 from twinmesh.robot.surroundings import BoxBody
 from twinmesh.sim.world import static_box
+from twinmesh.wot import units
 
 PREFIX = "obstacle-"  # the body name of obstacle `name` in the scene: obstacle-<name>
 COLOR = (0.95, 0.45, 0.1)
@@ -24,12 +25,12 @@ OBSTACLE_SCHEMA: dict[str, Any] = {
     "type": "object", "required": ["name", "size", "position"],
     "properties": {
         "name": {"type": "string", "pattern": "^[a-z0-9-]{1,40}$", "description": "Slug naming the obstacle."},
-        "size": {**_VEC3, "items": {"type": "number", "minimum": 0.01, "maximum": 3}, "unit": "m",
+        "size": {**_VEC3, "items": {"type": "number", "minimum": 0.01, "maximum": 3, "unit": units.METRE},
                  "description": "Full extents x, y, z (m)."},
-        "position": {**_VEC3, "items": {"type": "number", "minimum": -10, "maximum": 10}, "unit": "m",
+        "position": {**_VEC3, "items": {"type": "number", "minimum": -10, "maximum": 10, "unit": units.METRE},
                      "description": "Centre in the scene frame (m; z = 0 the floor)."},
-        "yaw": {"type": "number", "minimum": -180, "maximum": 180, "unit": "deg", "description": "About z."},
-        "color": {**_VEC3, "items": {"type": "number", "minimum": 0, "maximum": 1},
+        "yaw": {"type": "number", "minimum": -180, "maximum": 180, "unit": units.DEGREE, "description": "About z."},
+        "color": {**_VEC3, "items": {"type": "number", "minimum": 0, "maximum": 1, "unit": units.UNITLESS},
                   "description": "sRGB 0..1 (default orange)."},
     },
 }
