@@ -18,7 +18,7 @@ import pytest
 from labs import start_lab
 from tdschema import assert_valid_td
 
-from twinmesh.messages.relations import POINTS
+from twinmesh.messages.relations import POINTS, SCENE
 from twinmesh.sim.robot import workspace_from_csv
 
 SAMPLES = "4000"
@@ -153,7 +153,7 @@ def test_an_obstacle_shrinks_the_ur10s_workspace_and_observers_notice(lab, http)
     assert len(points1.positions) == len(points0.positions)  # the same sampled configurations...
     assert free1.sum() < free0.sum()                           # ...fewer of them collision-free now
     assert not (free1 & ~free0).any()                          # and none freed by adding a box
-    assert "obstacle-crate" in http.get(_links(td1)["scene"]).text
+    assert "obstacle-crate" in http.get(_links(td1)[SCENE]).text
 
     # a target that was free before and lies in the crate now is refused, and the robot stays put
     centre = ur10_frame(CRATE["position"])

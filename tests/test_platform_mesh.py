@@ -109,10 +109,13 @@ def test_get_cube_from_an_empty_warehouse_is_a_422_naming_it_and_the_dobot_stays
     assert r.status_code == 422 and "no cube at the end of conveyor belt 1" in r.json()["detail"]
 
 
-def test_object_presence_is_a_reading_a_write_is_refused(http):
+def test_object_presence_is_a_reading_its_td_offers_no_write_and_a_put_gets_405(http):
+    prop = http.get("/infrared-sensor-1").json()["properties"]["objectPresence"]
+    assert prop["readOnly"] is True and not any("writeproperty" in f["op"] for f in prop["forms"])
     assert http.get("/infrared-sensor-1/properties/objectPresence").json() is False
     r = http.put("/infrared-sensor-1/properties/objectPresence", json=True)
-    assert r.status_code == 422 and "cannot be set" in r.json()["detail"]
+    assert r.status_code == 405 and "PUT" not in r.headers["allow"] and "GET" in r.headers["allow"]
+    assert r.headers["content-type"] == "application/problem+json"
     assert http.get("/infrared-sensor-1/properties/objectPresence").json() is False
 
 

@@ -49,6 +49,8 @@ ALLOWED = {
     # a TD offers only what a handler serves (twinmesh.fabric.server.ExposedThing._truthful): the twin's location is
     # where its joints put it, so it is read-only (the real TD says writable, yet no write could move it)
     "uarm/properties/location/readOnly": "location: read-only, as the twin serves it",
+    # the same rule: a beam reading cannot be set, so the twin registers no write for it
+    "infrared-sensor-*/properties/objectPresence/readOnly": "objectPresence: a reading, read-only",
 }
 # TD 1.1 §5.3.2 / the issue: units from one vocabulary (QUDT, `qudt:` declared in @context); the real
 # belts' `%` is qudt:PERCENT, and the real TDs' unit-less numbers (mm, deg, lux, K...) get theirs
@@ -111,7 +113,7 @@ def test_twin_tds_have_the_real_affordances_and_schemas_with_only_the_documented
 def test_twin_tds_say_their_deviations_in_their_descriptions():
     from twinmesh.things.platform import twin_td
 
-    assert "writes are refused" in twin_td("infrared-sensor-1").description
+    assert "objectPresence is a beam reading, read-only" in twin_td("infrared-sensor-1").description
     assert "every change" in twin_td("infrared-sensor-2").description
     uarm = twin_td("uarm").description
     assert "beep" in uarm and "whole reach" in uarm and "turnRight" in uarm and "reset moves nothing" in uarm

@@ -156,7 +156,7 @@ def test_the_workspace_stl_and_the_points_csv_download_and_load(robots, name, ht
     assert rows[0] == ["x", "y", "z", "collision", *joints] and len(rows) == int(SAMPLES) + 1
     free = np.array([[float(v) for v in r[:3]] for r in rows[1:] if r[3] == "0"])
     assert np.allclose(free.min(axis=0), [lo for lo, _ in _bounds(td).values()], atol=1e-3)
-    scene = http.get(_link(td, "scene")).json()
+    scene = http.get(_link(td, SCENE)).json()
     assert scene["name"] == "table-and-wall" and any(b["name"] == "wall" for b in scene["bodies"])
     assert http.get(f"/tdgen/files/{name}.workspace.stl").content == stl.content  # the service's own copy
     assert http.get(f"/tdgen/files/{name}.nothing").status_code == 404

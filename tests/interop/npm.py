@@ -1,5 +1,6 @@
 """node-wot tooling for the interop tests and the HTTP benchmark: npm install, the scripted client
-(wot-client.mjs) and node-wot's own servient as baseline (servient-baseline.mjs).
+(wot-client.mjs), node-wot's own servient as baseline (servient-baseline.mjs), and the Thingweb
+TD Playground's validator and assertion tester (td-playground.cjs).
 
 Import as `from interop import npm` (tests/ is on sys.path). Without node/npm the helpers skip the
 test locally and fail it in CI (CI=true).
@@ -25,6 +26,8 @@ import pytest
 INTEROP_DIR = Path(__file__).resolve().parent
 CLIENT = INTEROP_DIR / "wot-client.mjs"
 BASELINE = INTEROP_DIR / "servient-baseline.mjs"
+PLAYGROUND = INTEROP_DIR / "td-playground.cjs"
+CONTEXTS = INTEROP_DIR.parent / "data" / "wot" / "contexts"  # JSON-LD contexts, local copies (data/SOURCES.md)
 LOCK = INTEROP_DIR / "package-lock.json"
 INSTALLED = INTEROP_DIR / "node_modules" / ".package-lock.json"  # npm rewrites it on every install
 INSTALL_TIMEOUT = 600
@@ -131,6 +134,23 @@ def run_client(td_url: str, steps: list[dict], timeout: float = 60, credentials:
         raise HarnessError(f"wot-client.mjs exited {done.returncode} with {len(results)} of {len(steps)} results\n"
                            f"--- stdout ---\n{done.stdout}--- stderr ---\n{stderr}")
     return results
+
+
+def playground(documents: list[dict], timeout: float = 300) -> list[dict]:
+    """The Thingweb TD Playground on each {"name", "kind": "td" | "tm", "document"}: one result per
+    document, {"name", "report", "details", "failed" (assertion ids), "counts", "log"} (td-playground.cjs)."""
+    ensure_node_modules()
+    command = [_node(), str(PLAYGROUND), str(CONTEXTS)]
+    try:
+        done = subprocess.run(command, cwd=INTEROP_DIR, input=json.dumps(documents), capture_output=True, text=True,
+                              timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise HarnessError(f"td-playground.cjs ran more than {timeout} s") from None
+    lines = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    if done.returncode != 0 or len(lines) != len(documents):
+        raise HarnessError(f"td-playground.cjs exited {done.returncode} with {len(lines)} of {len(documents)} "
+                           f"results\n--- stderr ---\n{_tail(done.stderr)}")
+    return lines
 
 
 def form_index(td: dict, kind: str, name: str, op: str, subprotocol: str | None = None) -> int:

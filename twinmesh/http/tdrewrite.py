@@ -168,7 +168,7 @@ def directory_td(base: str, prefix: str) -> dict[str, Any]:
     not_found = {"description": "TD with the given id not found", "contentType": "application/problem+json",
                  "htv:statusCodeValue": 404}
     return {
-        "@context": [*TD_CONTEXT[:2], DISCOVERY_CONTEXT, {"@language": "en"}],
+        "@context": [*TD_CONTEXT[:2], DISCOVERY_CONTEXT, *TD_CONTEXT[2:]],
         "@type": "ThingDirectory",
         "id": f"urn:twinmesh:directory:{prefix}",
         "title": "twinmesh Thing Description Directory",

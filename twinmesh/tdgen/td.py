@@ -130,9 +130,12 @@ def move_output_schema(robot: Robot) -> DataSchema:
 
 
 def plan_input_schema(joints: DataSchema, cartesian: DataSchema) -> DataSchema:
-    """Either a Cartesian target (x, y, z) or `joints` (the joint move's input)."""
+    """Either a Cartesian target (x, y, z) or `joints` (the joint move's input), never both, never neither."""
     return DataSchema(type="object", description="Either x, y, z (mm) or joints, as the move actions take them.",
-                      properties={**(cartesian.properties or {}), "joints": joints})
+                      oneOf=[DataSchema(type="object", title="Cartesian target", required=list("xyz"),
+                                        properties=cartesian.properties, additionalProperties=False),
+                             DataSchema(type="object", title="Joint target", required=["joints"],
+                                        properties={"joints": joints}, additionalProperties=False)])
 
 
 FRAMES = {"twin": "the robot's base frame", "real": "the real robot's frame (calibrated)"}

@@ -8,10 +8,11 @@ description (the real TD's quirks, decided once):
 - every action is `synchronous: true` (SPEC §5): the real Dobot's actions and `stopBelt` say
   `false` ("response is sent as soon as the request is received"), but every twin action answers
   when its motion is over, so a client needs no sleeps;
-- IR `objectPresence` stays `readOnly: false` as in the real TD (a script written for the real lab
-  consumes it unchanged), but the twin refuses every write (422): a reading comes from the beam,
-  it cannot be set. `detectedObject` fires on every change, with the new presence as data (the
-  real TD says "rising edge"; SPEC §3 and the issue say every change);
+- IR `objectPresence` is `readOnly: true` (the real TD says writable, yet a reading comes from the
+  beam and cannot be set): the twin registers no write, so its TD offers none and a PUT gets 405
+  with `Allow` (twinmesh.fabric.server.ExposedThing._truthful). `detectedObject` fires on every
+  change, with the new presence as data (the real TD says "rising edge"; SPEC §3 and the issue
+  say every change);
 - uArm `location`: the real TD declares the goTo box (x 120..200, y -200..200, z 52..100), but the
   arm can be elsewhere: at a `homeLoc` (x 50..250, y -330..330) and on the way between two points
   (moves are joint-space arcs: (200,-200,90) -> (200,200,90) passes x = 283). node-wot checks every
@@ -41,7 +42,6 @@ from twinmesh.sim.dobot import Dobot
 from twinmesh.sim.layouts.platform import IotPlatform
 from twinmesh.sim.sensors import ColorSensor, InfraredSensor
 from twinmesh.sim.uarm import Uarm
-from twinmesh.wot.problem import Refused
 from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 
 TDS = Path(__file__).parent / "tds"
@@ -55,7 +55,7 @@ Cleanup = Callable[[], None]
 
 _NOTES = {
     "synchronous": "Every action answers when it is over (synchronous), also where the real TD says otherwise.",
-    "infrared": "Twin: objectPresence is a beam reading: writes are refused (422). detectedObject fires on "
+    "infrared": "Twin: objectPresence is a beam reading, read-only (the real TD says writable). detectedObject fires on "
                 "every change of objectPresence (true: an object arrived, false: it left), with the new "
                 "value as data.",
     "uarm": "Twin: location is read-only (use goTo; the real TD says writable, but no write moves the arm). "
@@ -81,6 +81,7 @@ def _twin_td_json(slug: str) -> bytes:
             action["synchronous"] = True
         notes.append(_NOTES["synchronous"])
     if slug.startswith("infrared-sensor"):
+        td["properties"]["objectPresence"]["readOnly"] = True  # a beam reading: no write is registered
         notes.append(_NOTES["infrared"])
     elif slug == "uarm":
         for axis, (lo, hi) in LOCATION_RANGE.items():
@@ -151,15 +152,11 @@ def bind_belt(thing: ExposedThing, belt: Belt) -> Cleanup:
 
 
 def bind_infrared(thing: ExposedThing, sensor: InfraredSensor) -> Cleanup:
-    def refuse_write(value: Any) -> None:
-        raise Refused(f"{sensor.name}: objectPresence is what the beam sees and cannot be set; put an object "
-                      "in the beam (or take it away) instead", reason="sensor-reading")
-
     def changed(present: bool) -> None:  # the world's notifier thread, in order
         thing.emit_property_change("objectPresence", present)
         thing.emit_event("detectedObject", present)
 
-    thing.on_read("objectPresence", lambda: sensor.object_presence).on_write("objectPresence", refuse_write)
+    thing.on_read("objectPresence", lambda: sensor.object_presence)
     return sensor.on_change(changed)
 
 

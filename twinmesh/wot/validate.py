@@ -141,12 +141,38 @@ def _sentence(e: ValidationError, path: str) -> str:
             return f"{where}: unexpected field{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}"
         case "minProperties" | "maxProperties":
             return f"{where}: {e.message}"
-        case "oneOf":
-            matching = "more than one" if not e.context else "none"
-            return f"{where}: {_show(v)} matches {matching} of the allowed schemas (oneOf)"
-        case "anyOf":
-            return f"{where}: {_show(v)} matches none of the allowed schemas (anyOf)"
+        case "oneOf" | "anyOf":
+            names = [_branch_name(b, i) for i, b in enumerate(rule)]
+            options = f"either {names[0]} or {names[1]}" if len(names) == 2 else "one of: " + ", ".join(names)
+            if not e.context:
+                return f"{where}: {_show(v)} fits more than one of the allowed schemas ({e.validator}); give {options}"
+            aimed = _aimed_branch(e)
+            if aimed is not None:
+                return _sentence(aimed, path)
+            return f"{where}: {_show(v)} fits none of the allowed schemas ({e.validator}); give {options}"
         case "not":
             return f"{where}: {_show(v)} matches a schema it must not match"
         case _:
             return f"{where}: {e.message}"
+
+
+def _branch_name(schema: Any, index: int) -> str:
+    """A oneOf/anyOf branch as people know it: its title, else what it requires, else its number."""
+    if isinstance(schema, dict):
+        if schema.get("title"):
+            required = schema.get("required")
+            return f"{schema['title']} ({', '.join(required)})" if required else str(schema["title"])
+        if schema.get("required"):
+            return "an object with " + ", ".join(schema["required"])
+    return f"schema {index + 1}"
+
+
+def _aimed_branch(e: ValidationError) -> ValidationError | None:
+    """The error of the one branch the value was meant for: the only branch whose required fields it
+    has (and whose type it has); None when that is not one branch."""
+    by_branch: dict[Any, list[ValidationError]] = {}
+    for sub in e.context or []:
+        by_branch.setdefault(sub.schema_path[0], []).append(sub)
+    aimed = [errors for errors in by_branch.values()
+             if not any(sub.validator in ("required", "type") and not sub.path for sub in errors)]
+    return min(aimed[0], key=lambda sub: len(sub.path)) if len(aimed) == 1 else None
