@@ -94,3 +94,23 @@ def test_a_scene_urdf_pybullet_cannot_load_fails_cleanly_with_several_workers(tm
     assert result.exit_code != 0
     assert "pybullet cannot load" in result.output and "junk.urdf" in result.output
     assert "Traceback" not in result.output
+
+
+def test_a_piped_csv_holds_only_csv_and_pybullet_speaks_on_stderr_with_v(tmp_path):
+    """pybullet's C prints (`pybullet build time`, `b3Warning`...) go to descriptor 1 past Python: they
+    must not land in what `twinmesh ik --targets` writes to a pipe; `-v` shows them on stderr."""
+    import subprocess
+    import sys
+
+    targets = tmp_path / "targets.csv"
+    targets.write_text("300,0,400\n200,100,300\n")
+    command = [sys.executable, "-m", "twinmesh", "ik", "xarm/xarm6_robot.urdf", "--targets", str(targets)]
+    quiet = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert quiet.returncode == 0, quiet.stderr
+    header, *rows = quiet.stdout.splitlines()
+    assert header.startswith("x,y,z,reached_x,reached_y,reached_z,error_mm,") and len(rows) == 2
+    assert all(float(v) == float(v) for row in rows for v in row.split(","))  # numbers only
+    assert "pybullet" not in quiet.stdout + quiet.stderr and "b3" not in quiet.stdout
+    loud = subprocess.run([sys.executable, "-m", "twinmesh", "-v", *command[3:]], capture_output=True, text=True,
+                          timeout=120)
+    assert loud.stdout == quiet.stdout and "pybullet build time" in loud.stderr

@@ -162,7 +162,7 @@ def test_outputs_carry_the_scene_with_the_robot_pose(generated):
     _, result, _, _, _ = generated
     assert set(result.files) == {"td", "robot-info", "points", "workspace", "scene"}
     scene = json.loads(result.files["scene"].read_text())
-    assert scene["robot"] == {"position": [0.0, 0.0, 0.625], "yaw": 0.0}
+    assert scene["robot"] == {"position": [0.0, 0.0, 0.625], "yaw": 0.0, "roll": 0.0, "pitch": 0.0}
     assert [b["name"] for b in scene["bodies"]] == ["floor", "table", "wall"]
     assert result.samples == SAMPLES and result.collision_free == (~generated[4]).sum()
 

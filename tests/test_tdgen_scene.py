@@ -133,3 +133,34 @@ def test_the_robot_stands_at_the_scene_pose():
         assert world.colliding(stretched).tolist() == [False, True]
     finally:
         world.close()
+
+
+def test_a_ceiling_mount_is_a_full_pose_the_collision_check_uses():
+    """The same configuration (upper arm straight up from the base) is free for a UR10 standing at 1 m and
+    hits the floor for one hung from the ceiling at 1 m (roll 180): the tilt is not lost on the way."""
+    robot = Robot.load("ur10.urdf")
+    floor = BoxBody(name="floor", size=(6.0, 6.0, 0.02), position=(0.0, 0.0, -0.01))
+    up = np.radians([0.0, -90.0, 0.0, -90.0, 0.0, 0.0])
+    results = {}
+    for roll in (0.0, 180.0):
+        scene = Scene(name="room", robot=RobotPlacement(position=(0.0, 0.0, 1.0), roll=roll), bodies=[floor])
+        world = CollisionWorld(robot, scene)
+        try:
+            results[roll] = world.what_collides(up)
+        finally:
+            world.close()
+    assert results[0.0] == [] and any(pair.endswith("/ floor") for pair in results[180.0]), results
+
+
+def test_without_a_scene_the_robot_stands_on_its_mounting_surface_unless_told_otherwise(tmp_path):
+    from twinmesh.tdgen.generate import generate
+
+    on_floor = generate("ur10.urdf", None, 2000, seed=0, out_dir=tmp_path / "a", workers=1)
+    alone = generate("ur10.urdf", None, 2000, seed=0, out_dir=tmp_path / "b", workers=1, surface=False)
+    hung = generate("ur10.urdf", None, 2000, seed=0, out_dir=tmp_path / "c", workers=1,
+                    mount=RobotPlacement(position=(0.0, 0.0, 2.5), roll=180.0))
+    assert on_floor.low_mm[2] > -1.0 and alone.low_mm[2] < -1000.0  # nothing below the floor through the base
+    assert hung.low_mm[2] > -1.0 and hung.collision_free == on_floor.collision_free  # the ceiling, seen from the base
+    scene = msgspec.json.decode((tmp_path / "c" / "scene.json").read_bytes())
+    assert scene["robot"]["roll"] == 180.0 and scene["bodies"][0]["name"] == "mounting-surface"
+    assert scene["bodies"][0]["position"][2] > 2.5  # the slab is above the hung base

@@ -16,15 +16,16 @@ import click
 import numpy as np
 from tqdm import tqdm
 
+from twinmesh.cli.arm_options import ArmChoice, arm_options
 from twinmesh.cli.exits import usage_exit
 from twinmesh.robot import ik
 from twinmesh.robot.kinematics import ForwardKinematics
-from twinmesh.robot.model import Robot, RobotError
+from twinmesh.robot.model import RobotError
 
 
-def _load(urdf: str, ee: str | None) -> ForwardKinematics:
+def _load(urdf: str, arm: ArmChoice) -> ForwardKinematics:
     try:
-        return ForwardKinematics(Robot.load(urdf, ee=ee))
+        return ForwardKinematics(arm.load(urdf))
     except RobotError as exc:
         raise usage_exit(str(exc)) from None
 
@@ -75,11 +76,11 @@ def _fmt(xyz) -> str:
               help="CSV of targets (x,y,z in mm, header optional) instead of X Y Z.")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
               help="Where to write the solutions of --targets [default: stdout].")
-@click.option("--ee", metavar="LINK", help="End-effector link [default: end of the longest joint chain].")
 @click.option("--seed", metavar="J1,J2,...", help="Starting joint values (deg/mm), e.g. the current pose.")
 @click.option("--tol", type=float, default=ik.TOL_M * 1000, show_default=True, help="Tolerance in mm.")
+@arm_options
 def ik_command(urdf: str, xyz: tuple[float, ...], targets_csv: Path | None, out: Path | None,
-               ee: str | None, seed: str | None, tol: float) -> None:
+               arm: ArmChoice, seed: str | None, tol: float) -> None:
     """Inverse kinematics for URDF: X Y Z in mm (robot base frame), or --targets CSV.
 
     URDF may be a path, a robot shipped with tdgen (ur10.urdf) or one of pybullet_data
@@ -89,7 +90,7 @@ def ik_command(urdf: str, xyz: tuple[float, ...], targets_csv: Path | None, out:
         raise click.UsageError("give either X Y Z or --targets CSV")
     if targets_csv is None and len(xyz) != 3:
         raise click.UsageError(f"expected X Y Z (three numbers in mm), got {len(xyz)}")
-    fk = _load(urdf, ee)
+    fk = _load(urdf, arm)
     q0 = _seed(fk, seed)
     if targets_csv is not None:
         _solve_csv(fk, _read_targets(targets_csv), out, q0, tol / 1000)

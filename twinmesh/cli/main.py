@@ -13,6 +13,7 @@ import msgspec
 from twinmesh.cli import completion
 from twinmesh.cli.exits import UNREACHABLE, CommandFailed, usage_exit
 from twinmesh.cli.mesh_client import mesh_client
+from twinmesh.cli.native_output import quiet_pybullet_import, separate_native_stdout
 from twinmesh.fabric.client import NOTHING, MeshClient
 from twinmesh.fabric.settings import DEFAULT_ENDPOINT, MeshSettings
 from twinmesh.lab.supervisor import ProcessSpec, Supervisor, set_title
@@ -68,11 +69,15 @@ CONNECT_NOTE = ("The lab: --connect ENDPOINT before the command (twinmesh --conn
               help="Zenoh mode [default: peer for devices and services, client for one-shot commands].")
 @click.option("--multicast/--no-multicast", default=False, show_default=True, show_envvar=True,
               help="Multicast scouting.")
-@click.option("-v", "--verbose", count=True, help="More logging (-vv for debug).")
+@click.option("-v", "--verbose", count=True,
+              help="More logging (-vv for debug); also shows pybullet's own messages (on stderr).")
 @click.version_option(package_name="twinmesh", message="twinmesh %(version)s")
 @click.pass_context
 def main(ctx: click.Context, prefix, connect, listen, mode, multicast, verbose) -> None:
     """twinmesh: a digital-twin lab for the Web of Things."""
+    separate_native_stdout(show=verbose > 0)  # pybullet's C prints never mix into what a command prints
+    if not verbose:
+        quiet_pybullet_import()
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)],
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     ctx.obj = MeshSettings(prefix=prefix, mode=mode or "peer", connect=tuple(connect) or (DEFAULT_ENDPOINT,),

@@ -10,12 +10,13 @@ from typing import cast
 
 import click
 
+from twinmesh.cli.arm_options import ArmChoice, arm_options, mount_options
 from twinmesh.cli.exits import usage_exit
 from twinmesh.http.auth import Auth
 from twinmesh.http.tdrewrite import NOSEC
 from twinmesh.robot.calibration import CalibrationError, Model
-from twinmesh.robot.model import Robot, RobotError
-from twinmesh.robot.surroundings import SceneError
+from twinmesh.robot.model import RobotError
+from twinmesh.robot.surroundings import RobotPlacement, SceneError
 from twinmesh.robot.workspace import WorkspaceError
 from twinmesh.robot.workspace_check import DEFAULT_K, DEFAULT_MAX_PROBABILITY, DEFAULT_RADIUS_MM, Workspace
 from twinmesh.tdgen.generate import DEFAULT_SAMPLES, Frame, generate
@@ -44,22 +45,25 @@ SECURITY = {"nosec": NOSEC, "basic": Auth("basic", "").security(), "bearer": Aut
               default="auto", show_default=True, help="Calibration map to use for --frame real.")
 @click.option("--frame", type=click.Choice(["twin", "real"]), default="twin", show_default=True,
               help="Frame of the TD's Cartesian data and of the artefacts (real needs --calibration).")
-@click.option("--ee", help="End-effector link [default: the end of the longest joint chain].")
 @click.option("--concave", is_flag=True, help="Also write an alpha shape, workspace-concave.stl.")
 @click.option("--name", help="Thing name, a slug [default: the base URL's last segment, else from the robot's name].")
 @click.option("--id", "thing_id", help="TD id, an absolute URI [default: urn:twinmesh:robot:<name>].")
 @click.option("--workers", type=click.IntRange(min=1), help="Processes for collision checking [default: all cores].")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@arm_options
+@mount_options
 def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir: str | None, base_url: str | None,
-                  calibration: str | None, calibration_model: str, frame: str, ee: str | None, concave: bool,
-                  name: str | None, thing_id: str | None, workers: int | None, no_progress: bool, security: str) -> None:
+                  calibration: str | None, calibration_model: str, frame: str, arm: ArmChoice, concave: bool,
+                  name: str | None, thing_id: str | None, workers: int | None, no_progress: bool, security: str,
+                  mount: RobotPlacement | None, surface: bool) -> None:
     """Generate a robot's Thing Description and workspace artefacts from its URDF and its scene."""
     try:
-        robot = Robot.load(urdf, ee=ee)
+        robot = arm.load(urdf)
+        click.echo(f"{robot.name}: {robot.describe_chain()}")
         result = generate(robot, scene, samples, seed, Path(out_dir or f"td-{slug(robot.name)}"), base_url,
                           calibration, cast(Frame, frame), concave, progress=not no_progress, name=name,
                           thing_id=thing_id, workers=workers, calibration_model=cast(Model, calibration_model),
-                          security=SECURITY[security])
+                          security=SECURITY[security], mount=mount, surface=surface)
     except (*USER_ERRORS, ValueError) as exc:
         raise usage_exit(str(exc)) from None
     low, high = result.low_mm, result.high_mm
@@ -73,6 +77,8 @@ def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir
     if result.calibration is not None:
         click.echo(f"calibration residuals (mm; * = the {result.calibration.used} map in use):")
         click.echo(result.calibration.residual_table())
+    for warning in result.warnings:
+        click.echo(f"warning: {warning}", err=True)
     if concave and result.concave_volume_mm3 is None:
         click.echo("no alpha shape: the collision-free points are too few or too flat", err=True)
     for path in result.files.values():

@@ -81,6 +81,10 @@ class TwinDescription(msgspec.Struct, omit_defaults=True, kw_only=True):
     urdf_file: str = "robot.urdf"               # the same URDF served as files/<urdf_file>
     base: Pose                                  # the robot base in the scene frame (yaw in q)
     ee: str | None = None
+    base_link: str | None = None                # where the arm chain starts (None: the URDF's root)
+    fixed: dict[str, float] = {}                # joints held at a value, deg or mm
+    packages: dict[str, str] = {}               # ROS package name -> directory, for package:// meshes
+    allowed_collisions: list[tuple[str, str]] = []  # link pairs whose contact is no collision
     scene: dict[str, Any] = {}
     samples: int = 80000
     seed: int = 0

@@ -7,28 +7,40 @@ Choices a user should know about:
 - Units are SI inside (rad, m); `info()` and `to_user_units` give deg for revolute/continuous
   joints and mm for prismatic joints, as the TD does.
 - Continuous joints get the limits -pi..pi (one full turn, every orientation once).
-- Main joints are the actuated joints on the chain from the root link to the end effector,
-  minus URDF <mimic> joints and the joints named passive. Branches off that chain (a Panda's
-  finger joints, for instance) are not main joints and stay at 0.
-- The automatic end effector follows the chain with the most movable joints and stops where it
-  splits into several equally long movable branches (a gripper's fingers); from there it follows
-  a single fixed child if there is exactly one (the Panda's `panda_grasptarget`, a UR's
-  `ee_link`). Pass `ee=` to choose another link.
+- Main joints are the actuated joints on the chain from the base link (default: the URDF's root
+  link) to the end effector, minus URDF <mimic> joints, the joints named passive and the joints
+  held at a value (`fixed=`, e.g. a torso lift). Joints above the base link are held (at 0 unless
+  `fixed` says otherwise); branches off the chain (a Panda's finger joints) stay at 0.
+- The automatic end effector is where the arm ends: among the chains from the base link, those
+  with the most arm joints win, where a chain stops before a tool joint (named like a gripper,
+  finger, jaw, claw, thumb, knuckle or hand joint, or a mimic of one; a parallelogram's mimic of
+  an arm joint belongs to the arm). From the last arm joint it
+  follows the only fixed child, as long as there is exactly one (the Panda's `panda_grasptarget`;
+  a UR's `wrist_3_link`, which has two). Several equally long arms (Baxter's, the PR2's) are an
+  error listing them: pass `ee=` to pick one.
 - The end-effector position is the origin of the URDF link frame (pybullet's
   `worldLinkFramePosition`), not the link's centre of mass.
 """
 from __future__ import annotations
 
+import hashlib
 import math
+import os
+import re
+import tempfile
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
 
+from twinmesh.robot.resources import with_absolute_meshes
+
 ROBOTS_DIR = Path(__file__).parent / "models"  # the shipped URDFs
 MOVABLE = ("revolute", "prismatic", "continuous")
+TOOL_WORDS = re.compile(r"finger|gripper|jaw|claw|thumb|knuckle|hand|grasp|suction|tool_?changer")
 
 
 class RobotError(Exception):
@@ -90,32 +102,67 @@ class Robot:
     passive: PassiveMap | None
     _urdf_joints: dict[str, UrdfJoint] = field(default_factory=dict, repr=False, compare=False)
     _indices: dict[str, int] = field(default_factory=dict, repr=False, compare=False)
+    root_link: str = ""                     # the URDF's root: the frame of every position
+    base_link: str = ""                     # where the arm chain starts (the root unless told)
+    held: dict[str, float] = field(default_factory=dict)   # joints held at a value (SI), not moved
+    load_path: Path | None = None           # what pybullet loads: the URDF, or a copy with meshes resolved
+    packages: dict[str, str] = field(default_factory=dict)  # ROS package directories it was loaded with
+    allowed_collisions: tuple[tuple[str, str], ...] = ()    # link pairs whose contact is not a collision
 
     @classmethod
     def load(cls, urdf: str | Path, ee: str | None = None, passive_joints: Sequence[str] = (),
-             passive: PassiveMap | None = None) -> "Robot":
-        """Read the URDF (xml for structure, a private pybullet client for joint indices)."""
+             passive: PassiveMap | None = None, *, base_link: str | None = None,
+             fixed: Mapping[str, float] | None = None, packages: Mapping[str, Path] | None = None,
+             allowed_collisions: Sequence[tuple[str, str]] = ()) -> "Robot":
+        """Read the URDF (xml for structure, a private pybullet client for joint indices).
+
+        `base_link` starts the arm chain elsewhere than the root link; `fixed` holds joints at a
+        value (deg or mm, as the TD's units); `packages` names the directories of ROS packages
+        (`package://NAME/...`); `allowed_collisions` lists link pairs whose contact does not count (as
+        an SRDF's disabled collisions do: meshes that overlap by design).
+        """
         path = resolve_urdf(urdf)
         name, root, ujoints = _parse_urdf(path)
         by_child = {j.child: j for j in ujoints.values()}
         links = {root} | set(by_child)
+        for what, link in (("base link", base_link), ("end-effector link", ee)):
+            if link is not None and link not in links:
+                raise RobotError(f"{path}: no link named {link!r} for the {what} (links: {', '.join(sorted(links))})")
+        unknown = [n for n in (fixed or {}) if n not in ujoints or ujoints[n].type not in MOVABLE]
+        if unknown:
+            raise RobotError(f"{path}: cannot hold {', '.join(unknown)}: not movable joints of the URDF "
+                             f"(movable: {', '.join(n for n, j in ujoints.items() if j.type in MOVABLE)})")
+        held = {n: v / 1000.0 if ujoints[n].type == "prismatic" else math.radians(v) for n, v in (fixed or {}).items()}
+        allowed = tuple((str(a), str(b)) for a, b in allowed_collisions)
+        strangers = sorted({link for pair in allowed for link in pair} - links)
+        if strangers:
+            raise RobotError(f"{path}: no link named {', '.join(map(repr, strangers))} for an allowed collision "
+                             f"(links: {', '.join(sorted(links))})")
+        base = base_link or root
         if ee is None:
-            ee = _auto_ee(root, ujoints)
-        elif ee not in links:
-            raise RobotError(f"{path}: no link named {ee!r} (links: {', '.join(sorted(links))})")
+            ee = _auto_ee(path, base, ujoints, set(held))
+        above = _path_to(base, by_child)
         chain = _path_to(ee, by_child)
+        if chain[:len(above)] != above or (base != root and not any(j.parent == base for j in chain)):
+            raise RobotError(f"{path}: the end-effector link {ee!r} is not below the base link {base!r}")
+        held.update({j.name: 0.0 for j in above if j.type in MOVABLE and j.mimic is None and j.name not in held})
         passive_names = list(passive_joints)
         unknown = [n for n in passive_names if n not in ujoints or ujoints[n].type not in MOVABLE]
         if unknown:
             raise RobotError(f"{path}: passive joints {unknown} are not movable joints of the URDF")
         if passive_names and passive is None:
             raise RobotError(f"{path}: passive joints {passive_names} need a passive map")
-        main = [j for j in chain if j.type in MOVABLE and j.mimic is None and j.name not in passive_names]
+        main = [j for j in chain[len(above):] if j.type in MOVABLE and j.mimic is None
+                and j.name not in passive_names and j.name not in held]
         if not main:
-            raise RobotError(f"{path}: no actuated joint between the root link {root!r} and {ee!r}")
-        indices, link_indices = _pybullet_indices(path)
+            raise RobotError(f"{path}: no actuated joint between the base link {base!r} and {ee!r} "
+                             "(pick the arm's links with --base-link and --ee)")
+        load_path = loadable_urdf(path, packages)
+        indices, link_indices = _pybullet_indices(load_path)
         joints = [Joint(j.name, j.type, indices[j.name], *_limits(j), _velocity(j)) for j in main]
-        return cls(path, name, joints, passive_names, ee, link_indices[ee], passive, ujoints, indices)
+        return cls(path, name, joints, passive_names, ee, link_indices[ee], passive, ujoints, indices,
+                   root_link=root, base_link=base, held=held, load_path=load_path,
+                   packages={k: str(v) for k, v in (packages or {}).items()}, allowed_collisions=allowed)
 
     # --- limits and units -------------------------------------------------------------------
     def lows(self) -> np.ndarray:
@@ -143,7 +190,22 @@ class Robot:
             "jointTypes": [j.type for j in self.joints],
             "jointLimitLows": self.to_user_units(self.lows()).tolist(),
             "jointLimitHighs": self.to_user_units(self.highs()).tolist(),
+            "baseLink": self.base_link,
+            "tipLink": self.ee_link,
+            "rootLink": self.root_link,
+            "heldJoints": {n: self._user_value(n, v) for n, v in self.held.items()},
         }
+
+    def _user_value(self, joint: str, value: float) -> float:
+        """deg for a revolute or continuous joint, mm for a prismatic one."""
+        return value * 1000.0 if self._urdf_joints[joint].type == "prismatic" else math.degrees(value)
+
+    def describe_chain(self) -> str:
+        """The chain in one line, for people: base and tip links, the joints in between, held joints."""
+        held = (f"; held: {', '.join(f'{n}={self._user_value(n, v):g}' for n, v in self.held.items())}"
+                if self.held else "")
+        return (f"arm chain {self.base_link} -> {self.ee_link}: {len(self.joints)} joints "
+                f"({', '.join(j.name for j in self.joints)}){held}")
 
     # --- joint values -----------------------------------------------------------------------
     def chain(self) -> list[UrdfJoint]:
@@ -160,6 +222,8 @@ class Robot:
                 return Drive("main", main[name])
             if name in passive:
                 return Drive("passive", passive[name])
+            if name in self.held:
+                return Drive("const", -1, 0.0, self.held[name])
             uj = self._urdf_joints.get(name)
             if uj is None or uj.mimic is None or depth > len(self._urdf_joints):
                 return Drive("const", -1, 0.0, 0.0)
@@ -168,7 +232,7 @@ class Robot:
             return Drive(src.kind, src.index, m * src.multiplier, m * src.offset + off)
 
         mimics = [n for n, j in self._urdf_joints.items() if j.mimic and n not in main and n not in passive]
-        return {n: drive(n) for n in [*main, *passive, *mimics]}
+        return {n: drive(n) for n in dict.fromkeys([*main, *passive, *self.held, *mimics])}
 
     def joint_values(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """Values of main, passive and mimic joints for (N, n) main-joint values, vectorised."""
@@ -186,13 +250,15 @@ class Robot:
         return {self._indices[n]: float(v[0]) for n, v in self.joint_values(np.asarray(q)[None]).items()}
 
     # --- pybullet ---------------------------------------------------------------------------
-    def load_into(self, client: int, base_position=(0, 0, 0), base_yaw: float = 0.0, flags: int = 0) -> int:
-        """Load the robot with a fixed base into pybullet client `client`; returns the body id."""
+    def load_into(self, client: int, base_position=(0, 0, 0), base_yaw: float = 0.0, flags: int = 0,
+                  base_orientation: Sequence[float] | None = None) -> int:
+        """Load the robot with a fixed base into pybullet client `client`; returns the body id.
+        `base_orientation` (a quaternion x, y, z, w) replaces `base_yaw` (rad) for a tilted mount."""
         import pybullet as pb
 
-        orn = pb.getQuaternionFromEuler([0.0, 0.0, base_yaw])
+        orn = list(base_orientation) if base_orientation is not None else pb.getQuaternionFromEuler([0.0, 0.0, base_yaw])
         try:
-            body = pb.loadURDF(str(self.urdf_path), list(base_position), orn, useFixedBase=True,
+            body = pb.loadURDF(str(self.load_path or self.urdf_path), list(base_position), orn, useFixedBase=True,
                                flags=flags, physicsClientId=client)
         except pb.error as exc:
             raise RobotError(f"{self.urdf_path}: pybullet cannot load it ({exc})") from None
@@ -229,10 +295,48 @@ def _child(el: ET.Element, tag: str) -> ET.Element:
     return found
 
 
+def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None) -> Path:
+    """The file pybullet should load for `path`: itself, or (where it has `package://` meshes or
+    undeclared XML prefixes) a copy with every mesh made absolute as ROS resolves it and the prefixes
+    declared. A mesh that cannot be found is a RobotError naming it and where it was looked for."""
+    text = path.read_text(encoding="utf-8", errors="replace")
+    resolved, missing = with_absolute_meshes(text, path.parent, packages)
+    if missing:
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        raise RobotError(f"{path}: {missing[0]}{more}; name package directories with --package-path NAME=DIR, "
+                         "ROS_PACKAGE_PATH or AMENT_PREFIX_PATH")
+    if "package://" not in text and _declared(text) == text:
+        return path
+    out_text = _declared(resolved)
+    digest = hashlib.sha256(out_text.encode()).hexdigest()[:16]
+    out = Path(tempfile.gettempdir()) / "twinmesh-urdf" / digest / path.name
+    if not out.is_file():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(f".{out.name}.{os.getpid()}")
+        tmp.write_text(out_text, encoding="utf-8")
+        tmp.replace(out)
+    return out
+
+
+_PREFIXED_NAME = re.compile(r"[<\s/]([A-Za-z_][\w.-]*):[A-Za-z_][\w.-]*(?=[\s=/>])")
+
+
+def _declared(text: str) -> str:
+    """The URDF with every undeclared XML namespace prefix (`drake:`, `gazebo:`) declared on <robot>:
+    urdfdom and pybullet ignore them, an XML parser would refuse the file."""
+    prefixes = {p for p in _PREFIXED_NAME.findall(text) if p not in ("xml", "xmlns")}
+    undeclared = sorted(p for p in prefixes if f"xmlns:{p}=" not in text)
+    if not undeclared:
+        return text
+    declarations = "".join(f' xmlns:{p}="urn:twinmesh:undeclared:{p}"' for p in undeclared)
+    return re.sub(r"<robot\b", "<robot" + declarations, text, count=1)
+
+
 def _parse_urdf(path: Path) -> tuple[str, str, dict[str, UrdfJoint]]:
-    """(robot name, root link, joints by name) straight from the XML."""
+    """(robot name, root link, joints by name) straight from the XML, as tolerant as urdfdom of
+    attributes and elements in prefixes it does not declare."""
     try:
-        root_el = ET.parse(path).getroot()
+        root_el = ET.fromstring(_declared(path.read_text(encoding="utf-8", errors="replace")))
     except ET.ParseError as exc:
         raise RobotError(f"{path}: broken XML ({exc})") from None
     if root_el.tag != "robot":
@@ -270,26 +374,46 @@ def _path_to(link: str, by_child: dict[str, UrdfJoint]) -> list[UrdfJoint]:
     return chain[::-1]
 
 
-def _auto_ee(root: str, joints: dict[str, UrdfJoint]) -> str:
-    """Last link of the longest movable chain; a split into equal branches (fingers) ends it."""
+def is_tool_joint(j: UrdfJoint, joints: Mapping[str, UrdfJoint], depth: int = 0) -> bool:
+    """A joint of the tool rather than the arm: named like a gripper's, or a mimic of such a joint
+    (a parallelogram's mimic of an arm joint is part of the arm)."""
+    if TOOL_WORDS.search(j.name.lower()):  # the joint's name: a wrist may well turn a link called `gripper`
+        return True
+    source = joints.get(j.mimic[0]) if j.mimic else None
+    return source is not None and depth < len(joints) and is_tool_joint(source, joints, depth + 1)
+
+
+def _auto_ee(path: Path, base: str, joints: dict[str, UrdfJoint], held: set[str]) -> str:
+    """Where the arm from `base` ends (see the module's notes); several equal arms are an error."""
     children: dict[str, list[UrdfJoint]] = {}
     for j in joints.values():
         children.setdefault(j.parent, []).append(j)
 
-    def depth(link: str) -> int:  # most movable joints (mimic ones count) on any path below `link`
-        return max((int(j.type in MOVABLE) + depth(j.child) for j in children.get(link, [])), default=0)
+    def arm(j: UrdfJoint) -> bool:
+        return j.type in MOVABLE and j.name not in held and not is_tool_joint(j, joints)
 
-    link = root
+    ends: dict[str, int] = {}  # the link after an arm's last arm joint -> its arm joints
+
+    def walk(link: str, count: int, last: str | None) -> None:
+        onward = [j for j in children.get(link, []) if j.type not in MOVABLE or j.name in held or arm(j)]
+        if not onward and last is not None:
+            ends[last] = max(ends.get(last, 0), count)
+        for j in onward:
+            walk(j.child, count + arm(j), j.child if arm(j) else last)
+
+    walk(base, 0, None)
+    if not ends:
+        raise RobotError(f"{path}: no actuated joint below the link {base!r} (pick the arm's links with "
+                         "--base-link and --ee)")
+    best = max(ends.values())
+    tips = sorted(link for link, count in ends.items() if count == best)
+    if len(tips) > 1:
+        raise RobotError(f"{path}: {len(tips)} arms of {best} joints start at {base!r}, ending at "
+                         f"{', '.join(tips)}: pick one with --ee LINK (and --base-link LINK)")
+    link = tips[0]
     while True:
-        scored = [(int(j.type in MOVABLE) + depth(j.child), j) for j in children.get(link, [])]
-        best = max((s for s, _ in scored), default=0)
-        leaders = [j for s, j in scored if s == best]
-        if best == 0 or len(leaders) > 1:
-            break
-        link = leaders[0].child
-    while True:
-        fixed = [j for j in children.get(link, []) if j.type == "fixed" and depth(j.child) == 0]
-        if len(fixed) != 1:
+        fixed = [j for j in children.get(link, []) if j.type == "fixed"]
+        if len(fixed) != 1 or any(arm(j) for j in children.get(link, [])):
             return link
         link = fixed[0].child
 

@@ -16,7 +16,9 @@ metres for positions and sizes, degrees for angles (`yaw`, `rpy`). Example::
       ]
     }
 
-- `robot`: the robot's base position in the world and its yaw about the world z axis.
+- `robot`: the robot's base position in the world and its orientation: `yaw` about the world z
+  axis, and for an arm mounted on a wall or a ceiling `roll` and `pitch` (fixed-axis, degrees, as
+  `rpy`; `"roll": 180` hangs it from the ceiling).
 - `bodies[].type`: `"urdf"` (a URDF file: a path relative to the scene file, an absolute path, or
   `pybullet_data:<path>` for pybullet's bundled models; optional `scale`), `"box"` (`size`: full
   extents x, y, z) or `"cylinder"` (`radius`, `length` along the body's z axis).
@@ -43,7 +45,34 @@ class SceneError(Exception):
 
 class RobotPlacement(msgspec.Struct, forbid_unknown_fields=True):
     position: Vec3 = (0.0, 0.0, 0.0)
-    yaw: float = 0.0  # degrees about the world z axis
+    yaw: float = 0.0    # degrees about the world z axis
+    roll: float = 0.0   # degrees, fixed axes x then y then z (a wall mount: roll or pitch 90)
+    pitch: float = 0.0
+
+    @property
+    def rpy(self) -> Vec3:
+        return (self.roll, self.pitch, self.yaw)
+
+    def quaternion(self) -> tuple[float, float, float, float]:
+        """(x, y, z, w), as pybullet takes it."""
+        from scipy.spatial.transform import Rotation
+
+        x, y, z, w = Rotation.from_euler("xyz", self.rpy, degrees=True).as_quat()
+        return float(x), float(y), float(z), float(w)
+
+    @classmethod
+    def from_quaternion(cls, position: Vec3, q: tuple[float, float, float, float]) -> "RobotPlacement":
+        from scipy.spatial.transform import Rotation
+
+        roll, pitch, yaw = Rotation.from_quat(q).as_euler("xyz", degrees=True)
+        return cls(position=tuple(float(v) for v in position), roll=_tidy(roll), pitch=_tidy(pitch),  # type: ignore[arg-type]
+                   yaw=_tidy(yaw))
+
+
+def _tidy(deg: float) -> float:
+    """An angle without float dust: -0.0 and 1e-14 are 0."""
+    value = round(float(deg), 9)
+    return 0.0 if value == 0 else value
 
 
 class _Body(msgspec.Struct, forbid_unknown_fields=True, omit_defaults=True, tag_field="type", kw_only=True):
@@ -81,6 +110,27 @@ class Scene(msgspec.Struct, forbid_unknown_fields=True):
 def empty_scene() -> Scene:
     """The robot alone at the world origin: only self-collision counts."""
     return Scene(name="empty", description="The robot alone; only self-collision is checked.")
+
+
+MOUNT_SIZE, MOUNT_THICKNESS = 4.0, 0.02  # m
+
+
+def default_scene(robot: RobotPlacement | None = None, surface: bool = True) -> Scene:
+    """The robot where it is placed, on the surface it is mounted on (a floor for an upright arm, the
+    wall or the ceiling for a tilted one: a slab through the base, across the base's z axis), unless
+    `surface` is False (the robot alone)."""
+    robot = robot or RobotPlacement()
+    if not surface:
+        return msgspec.structs.replace(empty_scene(), robot=robot)
+    from scipy.spatial.transform import Rotation
+
+    down = Rotation.from_euler("xyz", robot.rpy, degrees=True).apply([0.0, 0.0, -MOUNT_THICKNESS / 2 - 0.001])
+    centre = tuple(float(p + d) for p, d in zip(robot.position, down))
+    slab = BoxBody(name="mounting-surface", size=(MOUNT_SIZE, MOUNT_SIZE, MOUNT_THICKNESS), position=centre,  # type: ignore[arg-type]
+                   rpy=robot.rpy, rgba=(0.55, 0.55, 0.55, 1.0))
+    return Scene(name="mounted", robot=robot, bodies=[slab],
+                 description="The robot on the surface it is mounted on (a 4 m slab through its base, across its "
+                             "z axis: the floor for an upright arm); self-collision and that surface are checked.")
 
 
 def scene_file(name_or_path: str | Path) -> Path:

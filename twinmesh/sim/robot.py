@@ -78,30 +78,36 @@ class WorkspacePending(Unavailable):
 
 @dataclass(frozen=True)
 class Base:
-    """Where the robot base stands in the scene frame: position (m) and yaw about z (deg)."""
+    """Where the robot base stands in the scene frame: position (m), yaw about z (deg) and, for a wall
+    or ceiling mount, roll and pitch (deg; fixed axes x, y, z as in a scene's `rpy`)."""
 
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     yaw: float = 0.0
+    roll: float = 0.0
+    pitch: float = 0.0
+
+    @property
+    def placement(self) -> RobotPlacement:
+        x, y, z = self.position
+        return RobotPlacement(position=(x, y, z), yaw=self.yaw, roll=self.roll, pitch=self.pitch)
 
     @property
     def quaternion(self) -> tuple[float, float, float, float]:
-        half = math.radians(self.yaw) / 2
-        return (0.0, 0.0, math.sin(half), math.cos(half))
+        return self.placement.quaternion()
 
     def pose(self) -> Pose:
         return Pose(tuple(float(v) for v in self.position), self.quaternion)  # type: ignore[arg-type]
 
     @classmethod
     def from_pose(cls, pose: Pose) -> "Base":
-        x, y, z, w = pose.q
-        return cls(tuple(pose.p), math.degrees(2 * math.atan2(z, w)))  # type: ignore[arg-type]
+        p = RobotPlacement.from_quaternion(tuple(pose.p), tuple(pose.q))  # type: ignore[arg-type]
+        return cls(p.position, p.yaw, p.roll, p.pitch)
 
 
 def placed(scene: Scene | None, base: Base) -> Scene:
     """The scene with the robot standing at `base` (a scene's own `robot` placement is replaced)."""
     scene = scene or empty_scene()
-    x, y, z = base.position
-    return msgspec.structs.replace(scene, robot=RobotPlacement(position=(x, y, z), yaw=base.yaw))
+    return msgspec.structs.replace(scene, robot=base.placement)
 
 
 def workspace_from_csv(data: bytes) -> Workspace:
@@ -208,7 +214,8 @@ class RobotTwin:
         self.arm: KinematicArm = world.run(lambda: self._build(q0))
 
     def _build(self, q0: np.ndarray) -> KinematicArm:  # stepping thread (or before the world starts)
-        arm = KinematicArm(self.world.client, str(self.robot.urdf_path), self.base.position, self.base.quaternion,
+        urdf = str(self.robot.load_path or self.robot.urdf_path)  # meshes resolved (twinmesh.robot.model)
+        arm = KinematicArm(self.world.client, urdf, self.base.position, self.base.quaternion,
                            self._main, self.robot.passive_names, self.robot.passive, self.world)
         self.arm = arm
         self._apply(q0)
@@ -330,7 +337,9 @@ class RobotTwin:
         scene.pop("robot", None)
         return TwinDescription(
             robot=self.name, urdf=urdf, urdf_sha256=urdf_sha256, urdf_file=urdf_file, base=self.base.pose(),
-            ee=self.robot.ee_link, scene=scene, samples=samples, seed=seed,
+            ee=self.robot.ee_link, base_link=self.robot.base_link, fixed=self.robot.info()["heldJoints"],
+            packages=self.robot.packages, allowed_collisions=list(self.robot.allowed_collisions), scene=scene,
+            samples=samples, seed=seed,
             calibration=None if cal is None else [[*t, *r] for t, r in zip(cal.twin, cal.real)],
             frame=self.frame.name, version=self.version)
 

@@ -138,7 +138,7 @@ def plan_input_schema(joints: DataSchema, cartesian: DataSchema) -> DataSchema:
                                         properties={"joints": joints}, additionalProperties=False)])
 
 
-FRAMES = {"twin": "the robot's base frame", "real": "the real robot's frame (calibrated)"}
+FRAMES = {"twin": "the frame of the robot's root link {root}", "real": "the real robot's frame (calibrated)"}
 POLICY = ("Every move follows a collision-free joint path (straight where that is free, else planned with OMPL in "
           "the live scene); Cartesian moves are refused outside the workspace hull{gate}, where no joint "
           "configuration reaches, where every configuration found collides, or where no path is found.")
@@ -187,10 +187,12 @@ def robot_td(robot: Robot, low: np.ndarray | None, high: np.ndarray | None, *, n
         description=description or None,
         version={"instance": str(version)},
         properties={
-            "getJointposition": _property(joints, "getJointposition", "Joint values: deg for revolute joints, "
-                                          "mm for prismatic ones."),
+            "getJointposition": _property(joints, "getJointposition", f"Joint values of the arm chain from the "
+                                          f"base link {robot.base_link} to the tip link {robot.ee_link}: deg for "
+                                          "revolute joints, mm for prismatic ones."),
             "getCartesianposition": _property(cartesian, "getCartesianposition",
-                                              f"End-effector position (mm) in {FRAMES[frame]}."),
+                                              f"Position (mm) of the tip link {robot.ee_link} in "
+                                              f"{FRAMES[frame].format(root=robot.root_link)}."),
         },
         actions={
             "moveToJointPosition": _action(joints, "moveToJointPosition", "Move to these joint values along a "

@@ -45,6 +45,7 @@ from twinmesh.wot.problem import BadInput, Problem
 from twinmesh.wot.td import ThingDescription, decode_td
 
 if TYPE_CHECKING:  # pybullet loads with twinmesh.sim.robot: `twinmesh --help` need not wait for it
+    from twinmesh.robot.surroundings import RobotPlacement
     from twinmesh.sim.robot import RobotTwin
 
 log = logging.getLogger(__name__)
@@ -221,27 +222,30 @@ class RobotThing:
 
 # --- the process ---------------------------------------------------------------------------------
 def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | None = None, scene: str | None = None,
-        base: tuple[float, float, float, float] | None = None, samples: int = DEFAULT_SAMPLES, seed: int = 0,
+        base: RobotPlacement | None = None, samples: int = DEFAULT_SAMPLES, seed: int = 0,
         ee: str | None = None, calibration: str | None = None, max_collision_probability: float | None = None,
-        speed: float | None = 1.0, planning_budget: float = 1.0) -> None:
+        speed: float | None = 1.0, planning_budget: float = 1.0, base_link: str | None = None,
+        fixed: dict[str, float] | None = None, packages: dict[str, str] | None = None,
+        allowed_collisions: tuple[tuple[str, str], ...] = (), surface: bool = True) -> None:
     """Process entry: one robot in its own World (its scene's static bodies loaded) until `stop` is set.
 
-    `base` is (x, y, z [m], yaw [deg]) in the scene frame (default: the scene's robot placement);
-    `speed` None runs the simulation as fast as possible.
+    `base` is where the robot stands in the scene frame (default: the scene's robot placement);
+    without a scene it stands on its mounting surface unless `surface` is False. `speed` None runs
+    the simulation as fast as possible.
     """
     from twinmesh.fabric.session import open_session
     from twinmesh.robot.calibration import load_calibration
     from twinmesh.robot.model import Robot
-    from twinmesh.robot.surroundings import build_into, empty_scene, load_scene
+    from twinmesh.robot.surroundings import build_into, default_scene, load_scene
     from twinmesh.sim.robot import WORKSPACE_WAIT, Base, RobotTwin
     from twinmesh.sim.world import World
 
-    robot = Robot.load(urdf, ee=ee)
-    the_scene = load_scene(scene) if scene else empty_scene()
-    if base:
-        where = Base((base[0], base[1], base[2]), float(base[3]))
-    else:
-        where = Base(the_scene.robot.position, the_scene.robot.yaw)
+    robot = Robot.load(urdf, ee=ee, base_link=base_link, fixed=fixed,
+                       packages={k: Path(v) for k, v in (packages or {}).items()}, allowed_collisions=allowed_collisions)
+    log.info("%s: %s", robot.name, robot.describe_chain())
+    the_scene = load_scene(scene) if scene else default_scene(base, surface)
+    placement = base or the_scene.robot
+    where = Base(placement.position, placement.yaw, placement.roll, placement.pitch)
     cal = load_calibration(calibration) if calibration else None
     world = World(speed=speed)
     with ExitStack() as stack:

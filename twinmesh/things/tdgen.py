@@ -77,8 +77,9 @@ class RobotStatus(msgspec.Struct, omit_defaults=True):
 def twin_hash(twin: TwinDescription) -> str:
     """The cache key: every input of the generation (not the twin's version number)."""
     inputs = {"generator": GENERATOR_VERSION, "robot": twin.robot, "urdf_sha256": twin.urdf_sha256,
-              "base": twin.base, "ee": twin.ee, "scene": twin.scene, "samples": twin.samples, "seed": twin.seed,
-              "calibration": twin.calibration, "frame": twin.frame}
+              "base": twin.base, "ee": twin.ee, "base_link": twin.base_link, "fixed": twin.fixed,
+              "packages": twin.packages, "allowed_collisions": twin.allowed_collisions, "scene": twin.scene,
+              "samples": twin.samples, "seed": twin.seed, "calibration": twin.calibration, "frame": twin.frame}
     return hashlib.sha256(msgspec.json.encode(inputs, order="sorted")).hexdigest()[:32]
 
 
@@ -296,7 +297,9 @@ class TdgenService:
         if sha != twin.urdf_sha256:
             raise RobotError(f"{path}: its content differs from the robot's URDF (sha256 {sha[:12]} here, "
                              f"{twin.urdf_sha256[:12]} there): run tdgen where the robot's URDF and meshes are")
-        robot = Robot.load(path, ee=twin.ee)
+        robot = Robot.load(path, ee=twin.ee, base_link=twin.base_link, fixed=twin.fixed,
+                           packages={k: Path(v) for k, v in twin.packages.items()},
+                           allowed_collisions=twin.allowed_collisions)
         calibration = None
         if twin.calibration:
             import numpy as np
@@ -311,6 +314,8 @@ class TdgenService:
                               frame=twin.frame, name=twin.robot, thing_id=robot_id(twin.robot), workers=workers,
                               on_progress=on_progress)
             (tmp / "td.json").write_bytes(msgspec.json.encode(result.td))  # the TD the robot serves on the mesh
+            for warning in result.warnings:
+                log.warning("%s: %s", twin.robot, warning)
             (tmp / "twin.json").write_bytes(msgspec.json.encode(twin))
             (tmp / DONE).write_text(GENERATOR_VERSION + "\n")
             try:
@@ -334,13 +339,10 @@ def _user_errors() -> tuple[type[Exception], ...]:
 
 def scene_of(twin: TwinDescription):
     """The tdgen Scene of a twin: its bodies, with the robot standing at its base."""
-    import math
+    from twinmesh.robot.surroundings import RobotPlacement, Scene
 
-    from twinmesh.robot.surroundings import Scene
-
-    x, y, z, w = twin.base.q
-    placement = {"position": list(twin.base.p), "yaw": math.degrees(2 * math.atan2(z, w))}
-    return msgspec.convert({"name": "scene", **twin.scene, "robot": placement}, Scene)
+    placement = RobotPlacement.from_quaternion(tuple(twin.base.p), tuple(twin.base.q))  # type: ignore[arg-type]
+    return msgspec.convert({"name": "scene", **twin.scene, "robot": msgspec.to_builtins(placement)}, Scene)
 
 
 def run(settings: MeshSettings, stop: threading.Event, cache_dir: str | None = None,

@@ -1,0 +1,203 @@
+"""Arms nobody here picked: the `example-robot-data` package's robots, as a researcher would drop them in.
+
+For each arm of the zoo (6- and 7-DoF arms, a 5-DoF arm with a jaw, grippers with mimic joints,
+unlimited joints, two-arm robots, mobile manipulators, an arm on a quadruped): the chain chosen
+(base and tip link, joint count), the TD generated with its chain named, a watertight hull, and
+200 reachable targets (FK of random configurations) solved by our IK and checked by pybullet's own
+forward kinematics within 0.01 mm. Three of them (a gripper with mimic joints, a two-arm mobile
+manipulator with its torso held and its meshes found through `--package-path`, a 5-DoF arm) join a
+running lab and move there. The package is a test extra; without it the module is skipped (in CI it
+fails instead).
+"""
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import math
+import os
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pybullet as pb
+import pytest
+import trimesh
+from labs import start_lab
+
+from twinmesh.robot import ik
+from twinmesh.robot.kinematics import ForwardKinematics
+from twinmesh.robot.model import Robot, RobotError
+from twinmesh.robot.workspace import WorkspaceError
+from twinmesh.tdgen.generate import generate
+
+TARGETS = 200
+TOL_MM = 0.01
+
+
+def _share() -> Path | None:
+    try:
+        dist = importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError:
+        return None
+    return Path(str(dist.locate_file("cmeel.prefix/share/example-robot-data")))
+
+
+SHARE = _share()
+if SHARE is None:
+    if os.environ.get("CI") == "true":
+        pytest.fail("example-robot-data is not installed (a test extra: pip install -e '.[test]')", pytrace=False)
+    pytest.skip("example-robot-data is not installed (pip install -e '.[test]')", allow_module_level=True)
+ROBOTS = SHARE / "robots"
+
+# id: (URDF under robots/, Robot.load options, expected (base link, tip link, joints), what kind of arm)
+ZOO = {
+    "ur5": ("ur_description/urdf/ur5_robot.urdf", {}, ("world", "wrist_3_link", 6), "6-DoF industrial"),
+    "panda": ("panda_description/urdf/panda.urdf", {}, ("panda_link0", "panda_hand_tcp", 7),
+              "7-DoF, fingers (one a mimic)"),
+    "xarm7": ("xarm_description/urdf/xarm7.urdf", {}, ("world", "link_eef", 7), "7-DoF"),
+    "kinova": ("kinova_description/robots/kinova.urdf", {}, ("base", "j2s6s200_link_6", 6),
+               "6-DoF, unlimited (continuous) joints"),
+    "so100": ("so_arm_description/urdf/so100.urdf", {}, ("base", "gripper", 5), "5-DoF with a jaw"),
+    "z1": ("z1_description/urdf/z1.urdf", {}, ("world", "gripperStator", 6), "6-DoF with a gripper joint"),
+    "talos-arm": ("talos_data/robots/talos_left_arm.urdf", {}, ("arm_left_1_link", "gripper_left_base_link", 6),
+                  "humanoid arm, gripper of mimic joints"),
+    "baxter": ("baxter_description/urdf/baxter.urdf", {"ee": "left_wrist"}, ("base", "left_wrist", 7),
+               "two arms: the left one picked"),
+    "pr2": ("pr2_description/urdf/pr2.urdf", {"ee": "r_wrist_roll_link", "fixed": {"torso_lift_joint": 150.0}},
+            ("base_footprint", "r_wrist_roll_link", 7), "two-arm mobile manipulator, torso held"),
+    "tiago": ("tiago_description/robots/tiago.urdf", {"fixed": {"torso_lift_joint": 100.0}},
+              ("base_footprint", "wrist_ft_tool_link", 7), "mobile manipulator, torso held"),
+    "b1-z1": ("b1_description/urdf/b1-z1.urdf", {}, ("base", "gripperStator", 6), "an arm on a quadruped"),
+}
+
+
+@pytest.fixture(scope="module", params=sorted(ZOO))
+def arm(request):
+    urdf, options, expected, kind = ZOO[request.param]
+    return request.param, ROBOTS / urdf, options, expected, kind
+
+
+def test_two_arm_robots_are_refused_with_both_arms_named_until_one_is_picked():
+    with pytest.raises(RobotError) as err:
+        Robot.load(ROBOTS / "baxter_description/urdf/baxter.urdf")
+    assert "2 arms of 7 joints" in str(err.value) and "left_wrist, right_wrist" in str(err.value)
+    assert "--ee" in str(err.value)
+
+
+def test_each_arm_gets_its_chain_a_watertight_workspace_and_a_td_that_names_the_chain(arm, tmp_path):
+    name, urdf, options, (base, tip, n), kind = arm
+    robot = Robot.load(urdf, **options)
+    assert (robot.base_link, robot.ee_link, len(robot.joints)) == (base, tip, n), robot.describe_chain()
+    for joint in options.get("fixed", {}):
+        assert joint not in [j.name for j in robot.joints] and joint in robot.held
+    hangs = name == "talos-arm"  # a humanoid's arm: its root is the shoulder, not a mounting flange
+    if hangs:
+        with pytest.raises(WorkspaceError, match="--no-surface"):
+            generate(robot, None, 300, seed=0, out_dir=tmp_path / "on-a-floor", workers=1)
+    result = generate(robot, None, 1500, seed=0, out_dir=tmp_path, workers=1, surface=not hangs)
+    hull = trimesh.load_mesh(result.files["workspace"])
+    assert hull.is_watertight and hull.volume > 0
+    td = result.td
+    assert len(td["properties"]["getJointposition"]["properties"]) == n
+    assert f"base link {base} to the tip link {tip}" in td["properties"]["getJointposition"]["description"]
+    info = json.loads(result.files["robot-info"].read_text())
+    assert (info["baseLink"], info["tipLink"]) == (base, tip)
+    print(f"\n{name:10s} {kind:40s} {base} -> {tip}, {n} joints, {result.collision_free}/{result.samples} "
+          f"collision-free")
+
+
+def test_a_mostly_colliding_workspace_is_said_and_allowed_pairs_free_it(tmp_path):
+    """Baxter's left arm touches its own visual-named collision meshes at rest: tdgen says so and names
+    the pairs; allowing them (as an SRDF disables them) frees samples and the at-rest warning goes."""
+    urdf = ROBOTS / "baxter_description/urdf/baxter.urdf"
+    plain = generate(Robot.load(urdf, ee="left_wrist"), None, 800, seed=0, out_dir=tmp_path / "a", workers=1)
+    assert plain.warnings and "of the samples collide" in plain.warnings[0]
+    assert any("collides at rest" in w and "left_upper_forearm / left_upper_elbow_visual" in w for w in plain.warnings)
+    allowed = Robot.load(urdf, ee="left_wrist", allowed_collisions=[("left_upper_forearm", "left_upper_elbow_visual"),
+                                                                     ("left_upper_shoulder", "left_upper_elbow")])
+    freer = generate(allowed, None, 800, seed=0, out_dir=tmp_path / "b", workers=1)
+    assert freer.collision_free > plain.collision_free
+    assert not any("collides at rest" in w for w in freer.warnings)
+    with pytest.raises(RobotError, match="no link named 'nope' for an allowed collision"):
+        Robot.load(urdf, ee="left_wrist", allowed_collisions=[("nope", "torso")])
+
+
+def _pybullet_tip(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """The tip link's position (mm) by pybullet's own forward kinematics: the independent check."""
+    client = pb.connect(pb.DIRECT)
+    try:
+        body = robot.load_into(client)
+        out = []
+        for row in np.atleast_2d(q):
+            for index, value in robot.full_joint_values(row).items():
+                pb.resetJointState(body, index, value, physicsClientId=client)
+            out.append(pb.getLinkState(body, robot.ee_index, computeForwardKinematics=True,
+                                       physicsClientId=client)[4])
+        return np.array(out) * 1000.0
+    finally:
+        pb.disconnect(client)
+
+
+def test_each_arm_reaches_200_random_reachable_targets_within_a_hundredth_of_a_mm(arm):
+    name, urdf, options, _, _ = arm
+    robot = Robot.load(urdf, **options)
+    fk = ForwardKinematics(robot)
+    rng = np.random.default_rng(7)
+    q_true = rng.uniform(robot.lows(), robot.highs(), size=(TARGETS, len(robot.joints)))
+    targets = _pybullet_tip(robot, q_true)
+    started = time.perf_counter()
+    solved = ik.solve_many(fk, targets / 1000.0, rng=1)
+    seconds = time.perf_counter() - started
+    errors = np.linalg.norm(_pybullet_tip(robot, solved.q) - targets, axis=1)
+    reached = int((errors <= TOL_MM).sum())
+    print(f"\n{name:10s} IK: {reached}/{TARGETS} within {TOL_MM} mm by pybullet's FK, worst "
+          f"{errors.max():.2e} mm, {seconds / TARGETS * 1000:.1f} ms per target")
+    assert reached == TARGETS, f"{TARGETS - reached} missed; worst {errors.max():.3f} mm"
+
+
+# --- joining a lab ----------------------------------------------------------------------------
+JOINING = {
+    "talos-arm": ("talos_data/robots/talos_left_arm.urdf", ("--no-surface",)),  # hangs from its shoulder
+    "pr2": ("pr2_description/urdf/pr2.urdf", ("--ee", "r_wrist_roll_link", "--fix-joint", "torso_lift_joint=150",
+                                              "--package-path", "example-robot-data={share}")),
+    "so100": ("so_arm_description/urdf/so100.urdf", ()),
+}
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("zoo")
+    lab = start_lab(tmp, "lights", http=True, things={"light-left", "light-right", "tdgen"},
+                    extra_args=("--tdgen-cache", str(tmp / "cache")))
+    lab.tmp = tmp
+    yield lab
+    assert lab.stop(), "the lab did not stop cleanly"
+
+
+def test_zoo_arms_join_a_lab_get_their_td_generated_and_move(lab):
+    for name, (urdf, extra) in JOINING.items():
+        args = [a.format(share=SHARE) for a in extra]
+        lab.spawn("robot", str(ROBOTS / urdf), "--name", name, "--samples", "1500", "--speed", "max", *args,
+                  log=lab.tmp / f"{name}.log")
+    with httpx.Client(base_url=lab.http, timeout=120) as http:
+        for name in JOINING:
+            deadline, td = time.monotonic() + 180, None
+            while time.monotonic() < deadline:
+                r = http.get(f"/{name}")
+                if r.status_code == 200 and any("workspace" in link["rel"] for link in r.json()["links"]):
+                    td = r.json()
+                    break
+                time.sleep(0.2)
+            assert td is not None, (lab.tmp / f"{name}.log").read_text()[-3000:]
+            joints = td["properties"]["getJointposition"]["properties"]
+            goal = {j: round((s["minimum"] + s["maximum"]) / 2 * 0.3, 3) for j, s in joints.items()}
+            r = http.post(f"/{name}/actions/planMove", json={"joints": goal})
+            assert r.status_code in (200, 422), r.text  # a path, or a refusal that says why (a collision)
+            moved = http.post(f"/{name}/actions/moveToJointPosition", json=goal) if r.status_code == 200 else None
+            if moved is not None:
+                assert moved.status_code == 200, moved.text
+                now = http.get(f"/{name}/properties/getJointposition").json()
+                assert all(math.isclose(now[j], goal[j], abs_tol=1e-3) for j in goal), (now, goal)
+            print(f"\n{name}: joined, TD generated, planMove {r.status_code}"
+                  + (f", moved to {goal}" if moved is not None else f": {r.json().get('reason')}"))

@@ -1,0 +1,99 @@
+"""URDF files as they come: prefixes urdfdom ignores, `package://` meshes resolved as ROS does, a missing
+mesh named with where it was looked for, and the arm chain chosen from a gripper-carrying tree."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from twinmesh.robot.kinematics import ForwardKinematics
+from twinmesh.robot.model import ROBOTS_DIR, Robot, RobotError
+
+LINK = '<link name="{0}"><collision><geometry>{1}</geometry></collision></link>'
+BOX = '<box size="0.04 0.04 0.2"/>'
+JOINT = ('<joint name="{0}" type="{1}" {4}><parent link="{2}"/><child link="{3}"/><origin xyz="0 0 0.2"/>'
+         '<axis xyz="0 1 0"/><limit lower="-1.5" upper="1.5" effort="1" velocity="1"/>{5}</joint>')
+
+
+def arm_urdf(tmp_path: Path, geometry: str = BOX, extra: str = "", name: str = "arm.urdf") -> Path:
+    """Three arm joints, then a gripper: a prismatic finger joint and its mimic twin."""
+    links = "".join(LINK.format(n, geometry) for n in ["base", "l1", "l2", "l3", "palm", "finger_a", "finger_b"])
+    joints = [JOINT.format("j1", "revolute", "base", "l1", extra, ""),
+              JOINT.format("j2", "revolute", "l1", "l2", "", ""),
+              JOINT.format("j3", "revolute", "l2", "l3", "", ""),
+              '<joint name="palm_mount" type="fixed"><parent link="l3"/><child link="palm"/></joint>',
+              JOINT.format("finger_joint_a", "prismatic", "palm", "finger_a", "", ""),
+              JOINT.format("finger_joint_b", "prismatic", "palm", "finger_b", "",
+                           '<mimic joint="finger_joint_a" multiplier="-1"/>')]
+    path = tmp_path / name
+    path.write_text(f'<?xml version="1.0"?><robot name="arm">{links}{"".join(joints)}</robot>')
+    return path
+
+
+def test_the_chain_stops_before_the_gripper_and_follows_the_fixed_palm(tmp_path):
+    robot = Robot.load(arm_urdf(tmp_path))
+    assert [j.name for j in robot.joints] == ["j1", "j2", "j3"] and robot.ee_link == "palm"
+    assert "arm chain base -> palm: 3 joints" in robot.describe_chain()
+
+
+def test_a_held_joint_is_not_moved_and_its_value_is_in_the_kinematics(tmp_path):
+    free = Robot.load(arm_urdf(tmp_path))
+    held = Robot.load(arm_urdf(tmp_path), fixed={"j1": 30.0})  # deg
+    assert [j.name for j in held.joints] == ["j2", "j3"]
+    q = np.array([[0.2, -0.4]])
+    expected = ForwardKinematics(free).positions(np.array([[np.radians(30.0), 0.2, -0.4]]))
+    assert np.allclose(ForwardKinematics(held).positions(q), expected, atol=1e-12)
+    with pytest.raises(RobotError, match="cannot hold nope: not movable joints"):
+        Robot.load(arm_urdf(tmp_path), fixed={"nope": 1.0})
+
+
+def test_a_base_link_starts_the_chain_and_holds_what_is_above(tmp_path):
+    robot = Robot.load(arm_urdf(tmp_path), base_link="l1")
+    assert [j.name for j in robot.joints] == ["j2", "j3"] and robot.held == {"j1": 0.0}
+    with pytest.raises(RobotError, match="'base' is not below the base link 'l2'"):
+        Robot.load(arm_urdf(tmp_path), base_link="l2", ee="base")
+
+
+def test_attributes_in_prefixes_nobody_declared_are_ignored_as_urdfdom_does(tmp_path):
+    text = (ROBOTS_DIR / "ur10.urdf").read_text().replace('<joint name="shoulder_pan_joint"',
+                                                            '<joint drake:acceleration="12" name="shoulder_pan_joint"')
+    assert "drake:" in text
+    path = tmp_path / "ur10-drake.urdf"
+    path.write_text(text)
+    robot = Robot.load(path)
+    assert len(robot.joints) == 6 and robot.load_path != path  # pybullet loads a copy with the prefix declared
+
+
+def _mesh_package(tmp_path: Path) -> tuple[Path, str]:
+    package = tmp_path / "packages" / "my_arm_description"
+    (package / "meshes").mkdir(parents=True)
+    trimesh.creation.box((0.04, 0.04, 0.2)).export(package / "meshes" / "link.stl")
+    return package, '<mesh filename="package://my_arm_description/meshes/link.stl"/>'
+
+
+def test_package_meshes_are_found_where_they_are_named(tmp_path, monkeypatch):
+    package, mesh = _mesh_package(tmp_path)
+    (tmp_path / "elsewhere").mkdir()  # not below the package: pybullet's upward search cannot find it
+    urdf = arm_urdf(tmp_path / "elsewhere", mesh)
+    robot = Robot.load(urdf, packages={"my_arm_description": package})
+    assert robot.load_path is not None and str(package / "meshes" / "link.stl") in robot.load_path.read_text()
+    monkeypatch.setenv("ROS_PACKAGE_PATH", str(package.parent))  # as ROS 1 finds it
+    assert Robot.load(urdf).ee_link == "palm"
+    monkeypatch.delenv("ROS_PACKAGE_PATH")
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "prefix"))  # ROS 2: <prefix>/share/<package>
+    (tmp_path / "prefix" / "share").mkdir(parents=True)
+    (tmp_path / "prefix" / "share" / "my_arm_description").symlink_to(package)
+    assert Robot.load(urdf).ee_link == "palm"
+
+
+def test_a_missing_mesh_is_named_with_where_it_was_looked_for(tmp_path):
+    _, mesh = _mesh_package(tmp_path)
+    (tmp_path / "elsewhere").mkdir()
+    urdf = arm_urdf(tmp_path / "elsewhere", mesh)
+    with pytest.raises(RobotError) as err:
+        Robot.load(urdf)
+    message = str(err.value)
+    assert "mesh package://my_arm_description/meshes/link.stl not found (looked in" in message
+    assert "--package-path NAME=DIR" in message and "Cannot load URDF" not in message
