@@ -97,3 +97,34 @@ def test_a_missing_mesh_is_named_with_where_it_was_looked_for(tmp_path):
     message = str(err.value)
     assert "mesh package://my_arm_description/meshes/link.stl not found (looked in" in message
     assert "--package-path NAME=DIR" in message and "Cannot load URDF" not in message
+
+
+XACRO = """<?xml version="1.0"?>
+<robot name="macro_arm" xmlns:xacro="http://www.ros.org/wiki/xacro">
+  <xacro:property name="length" value="0.2"/>
+  <xacro:macro name="segment" params="n parent">
+    <link name="l${n}"><collision><geometry>
+      <mesh filename="file://$(find my_arm_description)/meshes/link.stl"/></geometry></collision></link>
+    <joint name="j${n}" type="revolute"><parent link="${parent}"/><child link="l${n}"/>
+      <origin xyz="0 0 ${length}"/><axis xyz="0 1 0"/><limit lower="-1.5" upper="1.5" effort="1" velocity="1"/>
+    </joint>
+  </xacro:macro>
+  <link name="base"/>
+  <xacro:segment n="1" parent="base"/>
+  <xacro:segment n="2" parent="l1"/>
+  <xacro:segment n="3" parent="l2"/>
+</robot>
+"""
+
+
+def test_a_xacro_file_is_expanded_with_its_packages_found_as_for_meshes(tmp_path):
+    pytest.importorskip("xacro", reason="xacro is a test extra (pip install -e '.[test]')")
+    package, _ = _mesh_package(tmp_path)
+    (tmp_path / "elsewhere").mkdir()
+    path = tmp_path / "elsewhere" / "macro_arm.urdf.xacro"
+    path.write_text(XACRO)
+    with pytest.raises(RobotError, match=r"\$\(find my_arm_description\): no package 'my_arm_description'"):
+        Robot.load(path)
+    robot = Robot.load(path, packages={"my_arm_description": package})
+    assert [j.name for j in robot.joints] == ["j1", "j2", "j3"] and robot.urdf_path.name == "macro_arm.urdf"
+    assert str(package / "meshes" / "link.stl") in robot.urdf_path.read_text()

@@ -36,7 +36,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from twinmesh.robot.resources import with_absolute_meshes
+from twinmesh.robot.resources import package_dir, with_absolute_meshes
 
 ROBOTS_DIR = Path(__file__).parent / "models"  # the shipped URDFs
 MOVABLE = ("revolute", "prismatic", "continuous")
@@ -122,6 +122,8 @@ class Robot:
         an SRDF's disabled collisions do: meshes that overlap by design).
         """
         path = resolve_urdf(urdf)
+        if path.suffix == ".xacro":
+            path = expand_xacro(path, packages)
         name, root, ujoints = _parse_urdf(path)
         by_child = {j.child: j for j in ujoints.values()}
         links = {root} | set(by_child)
@@ -307,15 +309,50 @@ def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None) -> Pat
                          "ROS_PACKAGE_PATH or AMENT_PREFIX_PATH")
     if "package://" not in text and _declared(text) == text:
         return path
-    out_text = _declared(resolved)
-    digest = hashlib.sha256(out_text.encode()).hexdigest()[:16]
-    out = Path(tempfile.gettempdir()) / "twinmesh-urdf" / digest / path.name
+    return _resolved_copy(path.name, _declared(resolved))
+
+
+def _resolved_copy(name: str, text: str) -> Path:
+    """`text` as a file called `name`, under the temporary directory, named by its content's hash."""
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    out = Path(tempfile.gettempdir()) / "twinmesh-urdf" / digest / name
     if not out.is_file():
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = out.with_name(f".{out.name}.{os.getpid()}")
-        tmp.write_text(out_text, encoding="utf-8")
+        tmp.write_text(text, encoding="utf-8")
         tmp.replace(out)
     return out
+
+
+def expand_xacro(path: Path, packages: Mapping[str, Path] | None = None) -> Path:
+    """A `.xacro` file expanded to URDF (with the `xacro` package, when installed): `$(find NAME)` is
+    resolved as `package://NAME` is (explicit packages, ROS_PACKAGE_PATH, AMENT_PREFIX_PATH, then
+    upward from the file). The URDF is written beside the other resolved copies and returned."""
+    try:
+        import xacro
+        import xacro.substitution_args as substitution
+    except ImportError:
+        raise RobotError(f"{path}: a .xacro file needs the xacro package (pip install xacro), or expand it "
+                         "first (xacro FILE > robot.urdf)") from None
+
+    def find(name: str) -> str:
+        found = package_dir(name, path.parent, packages)
+        if found is None:
+            raise RobotError(f"{path}: $(find {name}): no package {name!r} (name it with --package-path "
+                             f"{name}=DIR, ROS_PACKAGE_PATH or AMENT_PREFIX_PATH)")
+        return str(found)
+
+    original = substitution._eval_find
+    substitution._eval_find = find  # xacro asks ament_index; twinmesh answers as for package:// URIs
+    try:
+        text = xacro.process_file(str(path)).toprettyxml(indent="  ")
+    except RobotError:
+        raise
+    except Exception as exc:  # xacro raises its own XacroException and plain errors alike
+        raise RobotError(f"{path}: xacro could not expand it ({type(exc).__name__}: {exc})") from None
+    finally:
+        substitution._eval_find = original
+    return _resolved_copy(path.name.removesuffix(".xacro").removesuffix(".urdf") + ".urdf", text)
 
 
 _PREFIXED_NAME = re.compile(r"[<\s/]([A-Za-z_][\w.-]*):[A-Za-z_][\w.-]*(?=[\s=/>])")

@@ -25,6 +25,14 @@ def package_dirs(name: str, packages: Mapping[str, Path] | None = None) -> list[
     return dirs
 
 
+def package_dir(name: str, near: Path | None, packages: Mapping[str, Path] | None = None) -> Path | None:
+    """The directory of ROS package `name`: named, from the environment, or an ancestor of `near`
+    (or a sibling of one) called `name`, as pybullet's upward search finds it."""
+    ups = [near, *near.parents] if near else []
+    candidates = package_dirs(name, packages) + [d for up in ups for d in ((up,) if up.name == name else (up / name,))]
+    return next((c.resolve() for c in candidates if c.is_dir()), None)
+
+
 def resolve_uri(uri: str, urdf_dir: Path | None, packages: Mapping[str, Path] | None = None) -> tuple[Path | None,
                                                                                                          list[Path]]:
     """(the file `uri` names, or None; every place looked at) for a mesh of a URDF in `urdf_dir`."""
