@@ -271,9 +271,9 @@ def test_calibration_csv_is_the_models_affine_map():
     data = np.array(rows)
     assert data.shape[1] == 6 and len(data) >= 20
     assert np.allclose(data, np.array(calibration_pairs(UARM_BASE, len(data))), atol=2e-3)  # up to date
-    for axis in range(3):
+    for axis in range(3):  # both sides mm in the base frame: the twin's model is the firmware's kinematics
         k, b = np.polyfit(data[:, axis], data[:, axis + 3], 1)
-        assert k == pytest.approx(1000.0, rel=1e-4) and b == pytest.approx(-1000.0 * UARM_BASE[axis], abs=0.05)
+        assert k == pytest.approx(1.0, rel=1e-4) and b == pytest.approx(0.0, abs=0.05)
 
 
 def test_snapshots_publish_robot_joints_cube_poses_and_belt_states(platform):

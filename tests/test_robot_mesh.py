@@ -128,7 +128,7 @@ def test_each_robot_td_is_generated_on_the_mesh_served_and_valid(lab, robots, na
     td = robots[name]["td"]
     assert_valid_td(td)
     assert set(td["properties"]) == {"getJointposition", "getCartesianposition"}
-    assert set(td["actions"]) == {"moveToJointPosition", "moveToCartesianPosition", "planMove", "stop"}
+    assert set(td["actions"]) == {"moveToJointPosition", "moveToCartesianPosition", "moveToPose", "planMove", "stop"}
     assert td["actions"]["moveToCartesianPosition"]["output"]["required"] == ["path", "reached", "error_mm", "method",
                                                                              "planning_ms"]
     assert td["version"] == {"instance": "0"} and td["id"] == f"urn:twinmesh:robot:{name}"
@@ -334,3 +334,23 @@ def test_plan_move_answers_like_the_move_over_http_and_the_cli_and_moves_nothing
 def test_stop_answers_whether_a_move_was_under_way(robots, http):
     r = http.post("/ur10/actions/stop")
     assert r.status_code == 200 and r.json() == {"stopped": False}
+
+
+def test_a_pose_move_over_http_reaches_the_pose_a_cartesian_move_reported(lab, robots, http):
+    """Every move answers where the tip points; moveToPose (and planMove with a pose) takes that back."""
+    a, b = safe_targets(robots["ur10"]["points"], 2, seed=21)
+    first = http.post("/ur10/actions/moveToCartesianPosition", json=a)
+    assert first.status_code == 200, first.text
+    pose = {**first.json()["reached"], **first.json()["orientation"]}
+    assert http.post("/ur10/actions/moveToCartesianPosition", json=b).status_code == 200
+    plan = http.post("/ur10/actions/planMove", json=pose)
+    assert plan.status_code == 200 and plan.json()["error_deg"] <= 0.01, plan.text
+    moved = http.post("/ur10/actions/moveToPose", json=pose)
+    assert moved.status_code == 200, moved.text
+    answer = moved.json()
+    assert answer["error_mm"] <= TOL_MM and answer["error_deg"] <= 0.01
+    now = http.get("/ur10/properties/getCartesianposition").json()
+    assert math.dist([now[k] for k in "xyz"], [pose[k] for k in "xyz"]) <= TOL_MM
+    refused = http.post("/ur10/actions/moveToPose", json={**pose, "x": pose["x"] + 5000})
+    assert refused.status_code in (400, 422)  # beyond the TD's bounds (400) or unreachable (422)
+    assert http.get("/ur10/properties/getCartesianposition").json() == now

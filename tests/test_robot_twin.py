@@ -10,6 +10,7 @@ import msgspec
 import numpy as np
 import pytest
 from labs import free_port
+from scipy.spatial.transform import Rotation
 from tdschema import assert_valid_td
 
 from twinmesh.fabric.client import MeshClient
@@ -84,6 +85,36 @@ def test_a_reachable_target_is_reached_within_a_hundredth_of_a_millimetre(twin, 
         reached = twin.cartesian_position()
         assert result.error_mm <= 0.01
         assert np.linalg.norm(np.array([reached[a] for a in "xyz"]) - target) <= 0.01
+
+
+def _tip_pose(twin: RobotTwin) -> tuple[np.ndarray, Rotation]:
+    """The tip's pose in the base frame (mm) as pybullet places the twin's own arm in its world."""
+    position, quaternion = twin.arm.link_pose(twin.robot.ee_link)
+    base = Rotation.from_quat(twin.base.quaternion)
+    return base.inv().apply(np.array(position) - twin.base.position) * 1000.0, base.inv() * Rotation.from_quat(quaternion)
+
+
+def test_a_pose_target_is_reached_within_a_hundredth_of_a_mm_and_of_a_degree(twin, generated):
+    twin.set_workspace(generated)
+    a, b = safe_targets(generated, twin, 2, seed=3)
+    twin.move_to_cartesian(a)
+    position, orientation = _tip_pose(twin)  # a pose the arm can take, with the orientation IK chose there
+    twin.move_to_cartesian(b)
+    rpy = orientation.as_euler("xyz", degrees=True)
+    answer = twin.move_to_pose(position, rpy).answer(twin)
+    reached, now = _tip_pose(twin)
+    assert np.linalg.norm(reached - position) <= 0.01
+    assert np.degrees((now * orientation.inv()).magnitude()) <= 0.01
+    assert answer["error_mm"] <= 0.01 and answer["error_deg"] <= 0.01
+    assert set(answer["orientation"]) == {"roll", "pitch", "yaw"}
+    before = twin.joint_position()
+    with pytest.raises(Problem) as err:
+        twin.move_to_pose((0, 0, 3000), (0, 0, 0))
+    assert err.value.status == 422 and err.value.reason == "unreachable" and err.value.extra["error_mm"] > 1000
+    with pytest.raises(Problem) as err:
+        twin.move_to_pose(position, (0, 0, 0, 0))  # a quaternion of length 0
+    assert err.value.status == 400
+    assert twin.joint_position() == before
 
 
 def _in_wall(generated) -> tuple[int, int, int]:

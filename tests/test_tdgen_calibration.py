@@ -124,3 +124,24 @@ def test_real_frame_output_is_the_calibrated_transform_of_the_twin_output(tmp_pa
 def test_the_real_frame_needs_a_calibration(tmp_path):
     with pytest.raises(CalibrationError, match="real frame needs a calibration"):
         generate("ur10.urdf", samples=10, out_dir=tmp_path, frame="real")
+
+
+def test_pairs_in_different_units_are_refused_as_a_mixup_not_fitted(tmp_path):
+    """A twin side in metres against a real side in mm fits a 1000x scale: a unit mixup to report."""
+    twin_pts, real_pts = _pairs(8, seed=4, noise=0.0)
+    pairs = tmp_path / "pairs.csv"
+    np.savetxt(pairs, np.hstack([twin_pts / 1000.0, real_pts]), delimiter=",", fmt="%.6f")
+    with pytest.raises(CalibrationError, match=r"scales by 1\d\d\d.*different units"):
+        load_calibration(pairs)
+
+
+def test_the_shipped_uarm_pairs_map_tdgens_points_to_the_real_frame(tmp_path):
+    """The shipped uArm pairs are base-frame mm on both sides (the twin's model is the firmware's
+    kinematics): the real-frame TD's bounds are the twin frame's, not 1000x them."""
+    from twinmesh.robot.model import ROBOTS_DIR
+
+    kwargs = dict(robot="uarm_swift_pro.urdf", samples=3000, seed=1, workers=1)
+    twin = generate(**kwargs, out_dir=tmp_path / "twin")
+    real = generate(**kwargs, out_dir=tmp_path / "real", calibration=ROBOTS_DIR / "uarm-calibration.csv", frame="real")
+    assert np.allclose(real.low_mm, twin.low_mm, atol=0.5) and np.allclose(real.high_mm, twin.high_mm, atol=0.5)
+    assert 150 < real.high_mm[2] < 200  # the parallelogram keeps the tool under ~186 mm

@@ -46,7 +46,7 @@ def test_td_has_the_affordances_forms_and_links_the_adapter_serves(generated):
     url = BASE_URL.rstrip("/")
     assert "base" not in td, "every href is absolute, as the adapter serves them"
     assert set(td["properties"]) == {"getJointposition", "getCartesianposition"}
-    assert set(td["actions"]) == {"moveToJointPosition", "moveToCartesianPosition", "planMove", "stop"}
+    assert set(td["actions"]) == {"moveToJointPosition", "moveToCartesianPosition", "moveToPose", "planMove", "stop"}
     for name, prop in td["properties"].items():
         assert prop["readOnly"] and prop["observable"]
         forms = {(f["href"], f.get("subprotocol")): f["op"] for f in prop["forms"]}

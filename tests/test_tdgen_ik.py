@@ -126,3 +126,45 @@ def test_cli_names_the_bad_csv_line(tmp_path):
     result = CliRunner().invoke(ik_command, ["ur10.urdf", "--targets", str(src)])
     assert result.exit_code == 2
     assert "targets.csv line 2: expected x,y,z in mm, got '100,abc,300'" in result.output
+
+
+def _pybullet_pose(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tip's position (m) and quaternion by pybullet's own forward kinematics (the independent check)."""
+    import pybullet as pb
+
+    client = pb.connect(pb.DIRECT)
+    try:
+        body = robot.load_into(client)
+        for index, value in robot.full_joint_values(q).items():
+            pb.resetJointState(body, index, value, physicsClientId=client)
+        state = pb.getLinkState(body, robot.ee_index, computeForwardKinematics=True, physicsClientId=client)
+        return np.array(state[4]), np.array(state[5])
+    finally:
+        pb.disconnect(client)
+
+
+def test_pose_targets_are_reached_within_a_hundredth_of_a_mm_and_of_a_degree(fk):
+    """Random reachable poses (FK of random configurations, orientation as roll/pitch/yaw): pose IK
+    finds configurations pybullet agrees put the tip there within 0.01 mm and 0.01 deg."""
+    from scipy.spatial.transform import Rotation
+
+    from twinmesh.robot.pose_ik import solve_pose
+
+    robot = fk.robot
+    rng = np.random.default_rng(11)
+    for q_true in rng.uniform(robot.lows(), robot.highs(), (12, fk.n)):
+        position, quaternion = _pybullet_pose(robot, q_true)
+        rpy = Rotation.from_quat(quaternion).as_euler("xyz", degrees=True)
+        result = solve_pose(fk, position, rpy, rng=0)
+        assert result.ok and within_limits(robot, result.q), (robot.name, result.error_m, result.error_rad)
+        reached, orientation = _pybullet_pose(robot, result.q)
+        assert np.linalg.norm(reached - position) * 1000 <= 0.01
+        angle = (Rotation.from_quat(orientation) * Rotation.from_quat(quaternion).inv()).magnitude()
+        assert np.degrees(angle) <= 0.01 + 1e-6  # pybullet's float orientation
+
+
+def test_a_pose_a_four_joint_arm_cannot_take_is_refused_by_the_cli_with_how_far_it_is():
+    result = CliRunner().invoke(ik_command, ["uarm_swift_pro.urdf", "200", "0", "100", "--rpy", "0", "45", "0"])
+    assert result.exit_code == 1 and "not reachable" in result.output and "45.000 deg away" in result.output
+    ok = CliRunner().invoke(ik_command, ["ur10.urdf", "600", "200", "400", "--rpy", "180", "0", "90"])
+    assert ok.exit_code == 0 and "error 0.000000 mm and 0.000000 deg" in ok.output, ok.output

@@ -13,6 +13,7 @@ import pytest
 from twinmesh.robot.collision import CollisionWorld
 from twinmesh.robot.model import Robot
 from twinmesh.robot.surroundings import (
+    SCENES_DIR,
     BoxBody,
     CylinderBody,
     RobotPlacement,
@@ -71,7 +72,7 @@ def test_bad_scene_files_are_refused_naming_the_file_and_the_problem(tmp_path, t
 
 
 def test_a_missing_scene_lists_the_shipped_ones():
-    with pytest.raises(SceneError, match="shipped scenes: cluttered-lab, table-and-wall"):
+    with pytest.raises(SceneError, match="shipped scenes: cluttered-lab, iot-platform, table-and-wall"):
         load_scene("no-such-scene")
 
 
@@ -164,3 +165,36 @@ def test_without_a_scene_the_robot_stands_on_its_mounting_surface_unless_told_ot
     scene = msgspec.json.decode((tmp_path / "c" / "scene.json").read_bytes())
     assert scene["robot"]["roll"] == 180.0 and scene["bodies"][0]["name"] == "mounting-surface"
     assert scene["bodies"][0]["position"][2] > 2.5  # the slab is above the hung base
+
+
+def test_a_worlds_scene_json_is_a_scene_for_one_of_its_robots():
+    """The iot-platform's scene, as its world Thing serves it, places the uArm (or the Dobot) where it
+    stands among the tables and belts; cubes (moving) and the other arm are not surroundings."""
+    from twinmesh.robot.surroundings import SceneError
+
+    with pytest.raises(SceneError, match="robots uarm, dobot: say which one"):
+        load_scene("iot-platform")
+    with pytest.raises(SceneError, match="no robot 'ur10'"):
+        load_scene("iot-platform", "ur10")
+    uarm, dobot = load_scene("iot-platform", "uarm"), load_scene("iot-platform", "dobot")
+    assert uarm.robot.position == pytest.approx((-0.375, 0.0, 0.75)) and uarm.robot.yaw == 0.0
+    assert dobot.robot.yaw == pytest.approx(180.0) and {b.name for b in uarm.bodies} == {b.name for b in dobot.bodies}
+    assert "floor" in {b.name for b in uarm.bodies} and not any(b.name.startswith("cube") for b in uarm.bodies)
+
+
+def test_the_shipped_iot_platform_scene_is_what_the_platform_world_serves(tmp_path):
+    from twinmesh.sim.layouts.platform import write_scene_json
+
+    write_scene_json(tmp_path / "now.json")
+    shipped = msgspec.json.decode((SCENES_DIR / "iot-platform.json").read_bytes())
+    assert msgspec.json.decode((tmp_path / "now.json").read_bytes()) == shipped, \
+        "regenerate it: python -m twinmesh.sim.layouts.platform"
+
+
+def test_the_uarm_generated_where_it_stands_keeps_above_its_table(tmp_path):
+    from twinmesh.tdgen.generate import generate
+
+    result = generate("uarm_swift_pro.urdf", load_scene("iot-platform", "uarm"), 3000, seed=0, out_dir=tmp_path,
+                      workers=1)
+    assert len(result.td["properties"]["getJointposition"]["properties"]) == 4  # the parallelogram's mimics
+    assert result.low_mm[2] > -1.0 and result.high_mm[2] < 190.0  # on the table top, the tool under ~186 mm

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import sys
 import time
 from pathlib import Path
@@ -21,6 +22,7 @@ from twinmesh.cli.exits import usage_exit
 from twinmesh.robot import ik
 from twinmesh.robot.kinematics import ForwardKinematics
 from twinmesh.robot.model import RobotError
+from twinmesh.robot.pose_ik import solve_pose
 
 
 def _load(urdf: str, arm: ArmChoice) -> ForwardKinematics:
@@ -78,9 +80,12 @@ def _fmt(xyz) -> str:
               help="Where to write the solutions of --targets [default: stdout].")
 @click.option("--seed", metavar="J1,J2,...", help="Starting joint values (deg/mm), e.g. the current pose.")
 @click.option("--tol", type=float, default=ik.TOL_M * 1000, show_default=True, help="Tolerance in mm.")
+@click.option("--rpy", nargs=3, type=float, metavar="ROLL PITCH YAW",
+              help="Also the tip's orientation, deg about the base frame's fixed x, y, z axes (as a URDF's rpy); "
+                   "solved within --tol and 0.01 deg.")
 @arm_options
 def ik_command(urdf: str, xyz: tuple[float, ...], targets_csv: Path | None, out: Path | None,
-               arm: ArmChoice, seed: str | None, tol: float) -> None:
+               arm: ArmChoice, seed: str | None, tol: float, rpy: tuple[float, float, float] | None) -> None:
     """Inverse kinematics for URDF: X Y Z in mm (robot base frame), or --targets CSV.
 
     URDF may be a path, a robot shipped with tdgen (ur10.urdf) or one of pybullet_data
@@ -93,7 +98,12 @@ def ik_command(urdf: str, xyz: tuple[float, ...], targets_csv: Path | None, out:
     fk = _load(urdf, arm)
     q0 = _seed(fk, seed)
     if targets_csv is not None:
+        if rpy:
+            raise click.UsageError("--rpy is for one X Y Z target")
         _solve_csv(fk, _read_targets(targets_csv), out, q0, tol / 1000)
+        return
+    if rpy:
+        _solve_pose(fk, xyz, rpy, q0, tol)
         return
     res = ik.solve(fk, np.array(xyz) / 1000, seed=q0, tol=tol / 1000, rng=0)
     if not res.ok:
@@ -105,6 +115,21 @@ def ik_command(urdf: str, xyz: tuple[float, ...], targets_csv: Path | None, out:
     for joint, value in zip(robot.joints, robot.to_user_units(res.q)):
         click.echo(f"  {joint.name:24} {value:12.4f} {'mm' if joint.type == 'prismatic' else 'deg'}")
     click.echo(f"reached {_fmt(res.reached_m * 1000)} mm, error {res.error_m * 1000:.6f} mm")
+
+
+def _solve_pose(fk: ForwardKinematics, xyz: tuple[float, ...], rpy: tuple[float, float, float],
+                q0: np.ndarray | None, tol: float) -> None:
+    res = solve_pose(fk, np.array(xyz) / 1000, rpy, seed=q0, tol_m=tol / 1000, rng=0)
+    robot = fk.robot
+    pose = f"{_fmt(xyz)} mm, roll/pitch/yaw ({', '.join(f'{a:g}' for a in rpy)}) deg"
+    if not res.ok:
+        raise click.ClickException(f"pose {pose} is not reachable by {robot.name} (ee {robot.ee_link}): the closest "
+                                   f"found is {res.error_m * 1000:.3f} mm and {math.degrees(res.error_rad):.3f} deg away")
+    click.echo(f"{robot.name} ({robot.ee_link}) reaches {pose} with:")
+    for joint, value in zip(robot.joints, robot.to_user_units(res.q)):
+        click.echo(f"  {joint.name:24} {value:12.4f} {'mm' if joint.type == 'prismatic' else 'deg'}")
+    click.echo(f"reached {_fmt(res.position_m * 1000)} mm, error {res.error_m * 1000:.6f} mm and "
+               f"{math.degrees(res.error_rad):.6f} deg")
 
 
 def _solve_csv(fk: ForwardKinematics, targets_mm: np.ndarray, out: Path | None,

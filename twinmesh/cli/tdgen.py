@@ -16,7 +16,7 @@ from twinmesh.http.auth import Auth
 from twinmesh.http.tdrewrite import NOSEC
 from twinmesh.robot.calibration import CalibrationError, Model
 from twinmesh.robot.model import RobotError
-from twinmesh.robot.surroundings import RobotPlacement, SceneError
+from twinmesh.robot.surroundings import RobotPlacement, SceneError, load_scene
 from twinmesh.robot.workspace import WorkspaceError
 from twinmesh.robot.workspace_check import DEFAULT_K, DEFAULT_MAX_PROBABILITY, DEFAULT_RADIUS_MM, Workspace
 from twinmesh.tdgen.generate import DEFAULT_SAMPLES, Frame, generate
@@ -30,7 +30,10 @@ SECURITY = {"nosec": NOSEC, "basic": Auth("basic", "").security(), "bearer": Aut
 
 @click.command("tdgen")
 @click.argument("urdf")
-@click.option("--scene", help="Scene file, or a shipped scene: table-and-wall, cluttered-lab [default: the robot alone].")
+@click.option("--scene", help="Scene file (a tdgen scene, or a world Thing's scene.json), or a shipped scene: "
+              "table-and-wall, cluttered-lab, iot-platform [default: the robot on its mounting surface].")
+@click.option("--scene-robot", metavar="NAME", help="With a world's scene.json: the robot of that scene whose place "
+              "this one takes (iot-platform: uarm or dobot).")
 @click.option("--samples", type=click.IntRange(min=1), default=DEFAULT_SAMPLES, show_default=True,
               help="Random joint configurations to sample.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed, same points).")
@@ -40,7 +43,8 @@ SECURITY = {"nosec": NOSEC, "basic": Auth("basic", "").security(), "bearer": Aut
 @click.option("--security", type=click.Choice(["nosec", "basic", "bearer"]), default="nosec", show_default=True,
               help="The adapter's HTTP security (twinmesh up --auth), as the TD declares it.")
 @click.option("--calibration", type=click.Path(dir_okay=False),
-              help="CSV of twin_x,twin_y,twin_z,real_x,real_y,real_z pairs (mm).")
+              help="CSV of twin_x,twin_y,twin_z,real_x,real_y,real_z pairs, all mm; the twin side in the robot's "
+                   "base frame (where tdgen's points are).")
 @click.option("--calibration-model", type=click.Choice(["auto", "two-point", "per-axis", "affine"]),
               default="auto", show_default=True, help="Calibration map to use for --frame real.")
 @click.option("--frame", type=click.Choice(["twin", "real"]), default="twin", show_default=True,
@@ -55,12 +59,13 @@ SECURITY = {"nosec": NOSEC, "basic": Auth("basic", "").security(), "bearer": Aut
 def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir: str | None, base_url: str | None,
                   calibration: str | None, calibration_model: str, frame: str, arm: ArmChoice, concave: bool,
                   name: str | None, thing_id: str | None, workers: int | None, no_progress: bool, security: str,
-                  mount: RobotPlacement | None, surface: bool) -> None:
+                  mount: RobotPlacement | None, surface: bool, scene_robot: str | None) -> None:
     """Generate a robot's Thing Description and workspace artefacts from its URDF and its scene."""
     try:
         robot = arm.load(urdf)
+        surroundings = load_scene(scene, scene_robot) if scene else None
         click.echo(f"{robot.name}: {robot.describe_chain()}")
-        result = generate(robot, scene, samples, seed, Path(out_dir or f"td-{slug(robot.name)}"), base_url,
+        result = generate(robot, surroundings, samples, seed, Path(out_dir or f"td-{slug(robot.name)}"), base_url,
                           calibration, cast(Frame, frame), concave, progress=not no_progress, name=name,
                           thing_id=thing_id, workers=workers, calibration_model=cast(Model, calibration_model),
                           security=SECURITY[security], mount=mount, surface=surface)

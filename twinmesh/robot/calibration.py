@@ -1,7 +1,10 @@
 """Twin-to-real calibration: the map from the twin's Cartesian frame to the real robot's (mm).
 
 Input: a CSV of pairs measured for the same joint configuration, six columns
-`twin_x,twin_y,twin_z,real_x,real_y,real_z` (a header line is optional, `#` lines are comments).
+`twin_x,twin_y,twin_z,real_x,real_y,real_z` (a header line is optional, `#` lines are comments),
+all in mm: the twin side is the twin's tool position in the robot's base frame (the frame of
+tdgen's sampled points), the real side what the real robot reports. A fitted scale beyond 100 or
+below 1/100 is refused as a unit or frame mixup (metres against mm, scene against base frame).
 Fits, all reported with per-pair residuals:
 - "two-point": per axis, `real = k*twin + b` through the two pairs farthest apart on that axis
   (the minimum the lab's procedure asks for; needs 2 pairs);
@@ -144,6 +147,9 @@ def affine(twin: np.ndarray, real: np.ndarray) -> Fit:
     return _fit_from_matrix("affine", solution.T, twin, real)
 
 
+MAX_SCALE = 100.0  # a calibration corrects mm-level errors; a scale this far from 1 is a unit or frame mixup
+
+
 def fit_calibration(twin: np.ndarray, real: np.ndarray, model: Model = "auto") -> Calibration:
     """Every fit the pairs allow, and the one to use (`auto`: affine > per-axis > two-point)."""
     twin, real = np.asarray(twin, dtype=float), np.asarray(real, dtype=float)
@@ -168,6 +174,12 @@ def fit_calibration(twin: np.ndarray, real: np.ndarray, model: Model = "auto") -
     m = np.array(next(f for f in fits if f.method == used).matrix)
     if abs(np.linalg.det(m[:, :3])) < 1e-9:
         raise CalibrationError(f"the {used} map is singular (a zero scale): the real frame would be flat")
+    scales = np.linalg.svd(m[:, :3], compute_uv=False)
+    if scales.max() > MAX_SCALE or scales.min() < 1 / MAX_SCALE:
+        odd = scales.max() if scales.max() > MAX_SCALE else scales.min()
+        raise CalibrationError(f"the {used} map scales by {odd:.4g}: the two sides are in different units (metres "
+                               "against mm?) or frames. Both sides are mm; the twin side is the twin's tool in the "
+                               "robot's base frame, as tdgen samples it")
     def point(p) -> tuple[float, float, float]:
         return float(p[0]), float(p[1]), float(p[2])
 

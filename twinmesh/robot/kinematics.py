@@ -1,4 +1,4 @@
-"""Vectorised forward kinematics and positional Jacobian of a `Robot`'s end effector.
+"""Vectorised forward kinematics and Jacobians (positional, and geometric for poses) of a `Robot`'s end effector.
 
 Built once from the URDF chain itself (joint origins xyz/rpy and axes, as the file states them),
 so it matches pybullet's link frames without a physics client, and evaluates thousands of
@@ -74,6 +74,7 @@ class ForwardKinematics:
         self._trans = [t[:3, 3].copy() for t in pre]
         self._prismatic = prismatic
         self._post = carry[:3, 3].copy()
+        self._post_rot = carry[:3, :3].copy()  # the tip link's orientation after the last joint frame
         self._a_main = np.array(a_main).reshape(len(pre), self.n).T          # (n, m)
         self._a_pass = np.array(a_pass).reshape(len(pre), n_passive).T       # (n_passive, m)
         self._const = np.array(const, dtype=float)
@@ -101,8 +102,9 @@ class ForwardKinematics:
         dp = (plus - minus) / (2 * eps)                                      # (N, n_passive, n)
         return d + np.einsum("pm,Npn->Nmn", self._a_pass, dp)
 
-    def _walk(self, q: np.ndarray, with_axes: bool):
-        """Positions (N, 3) and, if asked, joint axes and origins (N, m, 3) in the base frame."""
+    def _walk(self, q: np.ndarray, with_axes: bool, with_rotation: bool = False):
+        """Positions (N, 3) and, if asked, joint axes and origins (N, m, 3) in the base frame (and,
+        `with_rotation`, the tip's orientation (N, 3, 3) as the fourth value)."""
         v = self._chain_values(q)
         n = len(q)
         rot = np.broadcast_to(np.eye(3), (n, 3, 3))
@@ -122,6 +124,8 @@ class ForwardKinematics:
                 rot[:, :, 0] = c * x + s * y
                 rot[:, :, 1] = c * y - s * x
         pos = pos + rot @ self._post
+        if with_rotation:
+            return pos, axes, origins, rot @ self._post_rot
         return pos, axes, origins
 
     def positions(self, q: np.ndarray) -> np.ndarray:
@@ -140,6 +144,20 @@ class ForwardKinematics:
         lever = pos[:, :, None] - np.stack(origins, axis=-1)
         cols = np.where(np.array(self._prismatic), z, np.cross(z, lever, axis=1))
         return pos, cols @ self._chain_derivative(q)
+
+    def poses_and_jacobians(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(N, n) -> tip positions (N, 3), orientations (N, 3, 3) and geometric Jacobians (N, 6, n):
+        rows 0-2 the position's, rows 3-5 the angular velocity's (base frame), for pose IK."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        pos, axes, origins, rot = self._walk(q, with_axes=True, with_rotation=True)
+        if not axes:
+            return pos, rot, np.zeros((len(q), 6, self.n))
+        z = np.stack(axes, axis=-1)                                           # (N, 3, m)
+        lever = pos[:, :, None] - np.stack(origins, axis=-1)
+        prismatic = np.array(self._prismatic)
+        linear = np.where(prismatic, z, np.cross(z, lever, axis=1))
+        angular = np.where(prismatic, 0.0, z)
+        return pos, rot, np.concatenate([linear, angular], axis=1) @ self._chain_derivative(q)
 
     def jacobians(self, q: np.ndarray) -> np.ndarray:
         """Positional Jacobians d(ee position)/d(main joints): (N, n) -> (N, 3, n), (n,) -> (3, n)."""

@@ -13,7 +13,7 @@ Choices a user should know about:
   `fixed` says otherwise); branches off the chain (a Panda's finger joints) stay at 0.
 - The automatic end effector is where the arm ends: among the chains from the base link, those
   with the most arm joints win, where a chain stops before a tool joint (named like a gripper,
-  finger, jaw, claw, thumb, knuckle or hand joint, or a mimic of one; a parallelogram's mimic of
+  finger, jaw, claw, thumb or knuckle joint, or a mimic of one; a parallelogram's mimic of
   an arm joint belongs to the arm). From the last arm joint it
   follows the only fixed child, as long as there is exactly one (the Panda's `panda_grasptarget`;
   a UR's `wrist_3_link`, which has two). Several equally long arms (Baxter's, the PR2's) are an
@@ -40,7 +40,7 @@ from twinmesh.robot.resources import package_dir, with_absolute_meshes
 
 ROBOTS_DIR = Path(__file__).parent / "models"  # the shipped URDFs
 MOVABLE = ("revolute", "prismatic", "continuous")
-TOOL_WORDS = re.compile(r"finger|gripper|jaw|claw|thumb|knuckle|hand|grasp|suction|tool_?changer")
+TOOL_WORDS = re.compile(r"finger|gripper|jaw|claw|thumb|knuckle|grasp|suction|tool_?changer")
 
 
 class RobotError(Exception):

@@ -34,6 +34,8 @@ from typing import Union
 
 import msgspec
 
+from twinmesh.messages.scene import SceneDescription
+
 SCENES_DIR = Path(__file__).parent / "scenes"
 PYBULLET_DATA = "pybullet_data:"
 Vec3 = tuple[float, float, float]
@@ -143,12 +145,30 @@ def scene_file(name_or_path: str | Path) -> Path:
     raise SceneError(f"{name_or_path}: scene file not found (shipped scenes: {shipped})")
 
 
-def load_scene(name_or_path: str | Path) -> Scene:
-    """Read and check a scene file; file URDF paths come back absolute so the scene is self-contained."""
+def load_scene(name_or_path: str | Path, robot: str | None = None) -> Scene:
+    """Read and check a scene file; file URDF paths come back absolute so the scene is self-contained.
+
+    A world Thing's `scene.json` (twinmesh.messages.scene.SceneDescription: `robots` and `bodies`
+    with a `shape`) is read too: its static bodies, with robot `robot` standing where that scene puts
+    it (`from_world_scene`).
+    """
     path = scene_file(name_or_path)
     try:
-        scene = msgspec.json.decode(path.read_bytes(), type=Scene)
-    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        raw = msgspec.json.decode(path.read_bytes())
+    except msgspec.DecodeError as exc:
+        raise SceneError(f"{path}: not a valid scene ({exc})") from None
+    if isinstance(raw, dict) and ("robots" in raw or any(isinstance(b, dict) and "shape" in b
+                                                         for b in raw.get("bodies", []))):
+        try:
+            description = msgspec.convert(raw, SceneDescription)
+        except msgspec.ValidationError as exc:
+            raise SceneError(f"{path}: not a valid world scene ({exc})") from None
+        return from_world_scene(description, robot, str(path))
+    if robot is not None:
+        raise SceneError(f"{path}: a tdgen scene places one robot; --scene-robot is for a world's scene.json")
+    try:
+        scene = msgspec.convert(raw, Scene)
+    except msgspec.ValidationError as exc:
         raise SceneError(f"{path}: not a valid scene ({exc})") from None
     bodies = []
     for k, body in enumerate(scene.bodies):
@@ -157,6 +177,36 @@ def load_scene(name_or_path: str | Path) -> Scene:
             body = msgspec.structs.replace(body, urdf=str((path.parent / body.urdf).resolve()))
         bodies.append(body)
     return msgspec.structs.replace(scene, bodies=bodies)
+
+
+def from_world_scene(description: SceneDescription, robot: str | None, source: str = "scene") -> Scene:
+    """A world Thing's scene as tdgen surroundings: its static bodies (virtual ones such as a safety
+    wall included), with robot `robot` (the only one, if None) standing where the world puts it.
+    Moving bodies (cubes) and the scene's other robots are left out: they are not surroundings."""
+    from scipy.spatial.transform import Rotation
+
+    names = [r.name for r in description.robots]
+    if robot is None and len(names) != 1:
+        raise SceneError(f"{source}: the scene has {'robots ' + ', '.join(names) if names else 'no robot'}: say "
+                         "which one stands in it (--scene-robot NAME)")
+    model = next((r for r in description.robots if r.name == (robot or names[0])), None)
+    if model is None:
+        raise SceneError(f"{source}: no robot {robot!r} in the scene (robots: {', '.join(names) or 'none'})")
+    bodies: list[Body] = []
+    for b in description.bodies:
+        if b.moving:
+            continue
+        rpy = tuple(float(a) for a in Rotation.from_quat(b.pose.q).as_euler("xyz", degrees=True))
+        common = {"name": b.name, "position": tuple(b.pose.p), "rpy": rpy, "rgba": (*b.color, b.opacity)}
+        if b.shape == "cylinder":
+            bodies.append(CylinderBody(radius=b.size[0], length=b.size[1], **common))  # type: ignore[arg-type]
+        else:  # boxes, and a sphere as the box around it
+            size = tuple(b.size) if b.shape == "box" else (2 * b.size[0],) * 3
+            bodies.append(BoxBody(size=size, **common))  # type: ignore[arg-type]
+    placement = RobotPlacement.from_quaternion(tuple(model.base.p), tuple(model.base.q))  # type: ignore[arg-type]
+    return Scene(name=f"{description.name}:{model.name}", robot=placement, bodies=bodies,
+                 description=f"The static bodies of {description.name} ({source}), {model.name} standing where it "
+                             "does there.")
 
 
 def _check_body(path: Path, k: int, body: Body) -> None:

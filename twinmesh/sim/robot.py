@@ -38,6 +38,7 @@ from typing import Any, Callable, Literal, Mapping
 
 import msgspec
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from twinmesh.messages.scene import Pose, TwinDescription
 from twinmesh.robot.calibration import Calibration
@@ -46,6 +47,7 @@ from twinmesh.robot.ik import solve, solve_many
 from twinmesh.robot.kinematics import ForwardKinematics
 from twinmesh.robot.model import Robot
 from twinmesh.robot.planning import PLANNING_BUDGET_S, JointPath, NoPath, PathChecker, find_path
+from twinmesh.robot.pose_ik import rotation_of, solve_pose
 from twinmesh.robot.surroundings import RobotPlacement, Scene, empty_scene
 from twinmesh.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM, Workspace
 from twinmesh.sim.compensation import KinematicArm
@@ -58,6 +60,8 @@ IK_RESTARTS = 20    # random restarts each run may take before it gives up
 DISTINCT_RAD = 1e-3  # two solutions closer than this (every joint, rad or m) are one
 IK_CANDIDATES = 8   # collision-free solutions offered to the path search, the quickest motion first
 LIMIT_SLACK = 1e-9  # SI; joint targets this far past a limit are clipped, not refused
+POSE_SOLUTIONS = 4  # pose IK solutions looked for (the first from the current configuration), collision-free ones kept
+POSE_RESTARTS = 60  # random restarts per pose IK run
 TRACE_STEPS = 8    # end-effector points per path segment in a move's answer (`path.tip`)
 WORKSPACE_WAIT = 120.0  # s a robot Thing's Cartesian request waits for a workspace being generated
 
@@ -170,6 +174,10 @@ class MovePlan:
             "method": self.path.method, "planning_ms": self.path.planning_ms}
         if self.info.get("collision_probability") is not None:
             out["collision_probability"] = round(float(self.info["collision_probability"]), 6)
+        if self.info.get("orientation") is not None:  # where the tip points at the end
+            out["orientation"] = self.info["orientation"]
+        if self.info.get("error_deg") is not None:    # pose moves: how far from the asked orientation
+            out["error_deg"] = self.info["error_deg"]
         return out
 
 
@@ -363,6 +371,59 @@ class RobotTwin:
             self._play(plan)
         return plan
 
+    def move_to_pose(self, target_mm: Vec, orientation: Any) -> MovePlan:
+        """Move the tip to `target_mm` (TD frame) in `orientation` (roll/pitch/yaw in deg, or a quaternion
+        x, y, z, w; base frame) along a collision-free path; refused (nothing moves) unless one is found."""
+        with self._move_lock:
+            plan = self._plan_pose(target_mm, orientation)
+            self._play(plan)
+        return plan
+
+    def plan_pose(self, target_mm: Vec, orientation: Any) -> MovePlan:
+        """The answer `move_to_pose` would give, from where the robot is now, without moving (a dry run)."""
+        with self._move_lock:
+            return self._plan_pose(target_mm, orientation)
+
+    def _plan_pose(self, target_mm: Vec, orientation: Any) -> MovePlan:
+        """The path to a pose, or the refusal: `unreachable` (no configuration within 0.01 mm and 0.01 deg),
+        `collision` (every one found collides), `no-path`. Poses are in the twin's base frame only: a
+        calibration maps positions, not orientations."""
+        started = time.perf_counter()
+        if self.frame.name != "twin":
+            raise BadInput(f"{self.name}: pose targets are in the twin's base frame; this robot's TD is in the "
+                           "real robot's frame (a calibration maps positions only): use moveToCartesianPosition")
+        target = np.asarray(target_mm, dtype=float).reshape(3)
+        try:
+            rotation = rotation_of(orientation)
+        except ValueError as e:
+            raise BadInput(f"{self.name}: {e}") from None
+        where = f"{self.name}: pose ({', '.join(f'{v:g}' for v in target)}) mm, {_rpy_text(rotation)}"
+        target_m = target / 1000.0
+        first = solve_pose(self.fk, target_m, rotation, seed=self.arm.q, rng=0, max_restarts=POSE_RESTARTS)
+        if not first.ok:
+            raise MoveRefused(f"{where}: no joint configuration within the limits reaches it (closest "
+                              f"{first.error_m * 1000:.3f} mm and {math.degrees(first.error_rad):.3f} deg away)",
+                              reason="unreachable", extra={"error_mm": round(first.error_m * 1000, 6),
+                                                           "error_deg": round(math.degrees(first.error_rad), 6)})
+        with self._scene_lock:
+            checker = self._path_checker()
+            free: list[np.ndarray] = []
+            for attempt in range(POSE_SOLUTIONS):
+                found = first if attempt == 0 else solve_pose(self.fk, target_m, rotation, rng=attempt,
+                                                              max_restarts=POSE_RESTARTS, accept=checker.free)
+                q = self._nearest_turn(found.q)
+                if found.ok and checker.free(q) and all(np.abs(q - other).max() > DISTINCT_RAD for other in free):
+                    free.append(q)
+            if not free:
+                pairs = checker.world.what_collides(first.q)
+                raise MoveRefused(f"{where}: every joint configuration found for it collides, e.g. "
+                                  f"{'; '.join(pairs)}", reason="collision", extra={"collisions": pairs})
+            free.sort(key=self.motion_duration)
+            path = self._find_path(checker, free, started, where)
+        _, reached_rot, _ = self.fk.poses_and_jacobians(path.waypoints[-1][None])
+        error = np.linalg.norm((Rotation.from_matrix(rotation) * Rotation.from_matrix(reached_rot[0]).inv()).as_rotvec())
+        return self._plan(path, target, {"error_deg": round(math.degrees(float(error)), 6)})
+
     def plan_move(self, joints: Mapping[str, float] | Vec | None = None,
                   target_mm: Vec | None = None) -> MovePlan:
         """The answer a move would give, from where the robot is now, without moving (a dry run)."""
@@ -526,6 +587,11 @@ class RobotTwin:
     def _plan(self, path: JointPath, target: np.ndarray | None, info: dict[str, Any]) -> MovePlan:
         goal = path.waypoints[-1]
         reached = self._td_position(goal)
+        if self.frame.name == "twin":  # a calibration maps positions only: no orientation in the real frame
+            _, rotation, _ = self.fk.poses_and_jacobians(goal[None])
+            roll, pitch, yaw = Rotation.from_matrix(rotation[0]).as_euler("xyz", degrees=True)
+            info = {**info, "orientation": {"roll": round(float(roll), 6), "pitch": round(float(pitch), 6),
+                                            "yaw": round(float(yaw), 6)}}
         error = 0.0 if target is None else float(np.linalg.norm(reached - target))
         return MovePlan(path, self._durations(path.waypoints), _triple(reached), error, info)
 
@@ -588,3 +654,8 @@ def _xyz(p: np.ndarray) -> dict[str, float]:
 
 def _triple(p: np.ndarray) -> tuple[float, float, float]:
     return float(p[0]), float(p[1]), float(p[2])
+
+
+def _rpy_text(rotation: np.ndarray) -> str:
+    roll, pitch, yaw = Rotation.from_matrix(rotation).as_euler("xyz", degrees=True)
+    return f"roll {roll:.6g}, pitch {pitch:.6g}, yaw {yaw:.6g} deg"

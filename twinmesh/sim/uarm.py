@@ -271,10 +271,11 @@ class Uarm:
 
 # --- twin-to-real calibration pairs ---------------------------------------------------------------
 def calibration_pairs(base_position: Vec, n: int = 40, seed: int = 7) -> list[tuple[float, ...]]:
-    """(twin x,y,z [m, scene frame], real x,y,z [mm]) for `n` reachable configurations.
+    """(twin x,y,z, real x,y,z), both in mm, for `n` reachable configurations.
 
-    The twin side is the tool link as pybullet places it with the uArm at `base_position`; the
-    real side is the firmware's forward kinematics of the same motor angles.
+    The twin side is the tool link as pybullet places it with the uArm at `base_position`, in mm in
+    the robot's base frame: the frame of tdgen's sampled points, which a calibration maps. The real
+    side is the firmware's forward kinematics of the same motor angles.
     """
     rng = np.random.default_rng(seed)
     qs: list[np.ndarray] = []
@@ -291,8 +292,8 @@ def calibration_pairs(base_position: Vec, n: int = 40, seed: int = 7) -> list[tu
         rows = []
         for q in qs:
             arm.apply(q)
-            twin = arm.link_pose("tcp")[0]
-            rows.append((*twin, *real_fk(q)[0]))
+            twin = (np.array(arm.link_pose("tcp")[0]) - np.array(base_position)) * 1000.0  # base frame, mm
+            rows.append((*(float(v) for v in twin), *real_fk(q)[0]))
         return rows
     finally:
         pb.disconnect(client)
@@ -303,4 +304,4 @@ def write_calibration_csv(path: Path, base_position: Vec, n: int = 40) -> None:
         w = csv.writer(f)
         w.writerow(["twin_x", "twin_y", "twin_z", "real_x", "real_y", "real_z"])
         for row in calibration_pairs(base_position, n):
-            w.writerow([f"{v:.6f}" for v in row[:3]] + [f"{v:.3f}" for v in row[3:]])
+            w.writerow([f"{v:.3f}" for v in row])

@@ -126,14 +126,39 @@ def move_output_schema(robot: Robot) -> DataSchema:
         "planning_ms": DataSchema(type="number", unit=units.MILLISECOND, minimum=0.0),
         "collision_probability": DataSchema(type="number", unit=units.UNITLESS, minimum=0.0, maximum=1.0, description=(
             "Share of colliding samples among the target's nearest sampled points (information; Cartesian "
-            "targets with sampled neighbours only)."))})
+            "targets with sampled neighbours only).")),
+        "orientation": DataSchema(type="object", required=list(RPY), properties=_rpy(), description=(
+            "Where the tip points when the move ends (roll, pitch, yaw; fixed axes, base frame); not in a "
+            "calibrated robot's real frame, which maps positions only.")),
+        "error_deg": DataSchema(type="number", unit=units.DEGREE, minimum=0.0,
+                                description="Pose moves: the angle between the tip's orientation and the target's.")})
+
+
+RPY = ("roll", "pitch", "yaw")
+
+
+def _rpy() -> dict[str, DataSchema]:
+    return {a: DataSchema(type="number", unit=units.DEGREE, minimum=-180.0, maximum=180.0) for a in RPY}
+
+
+def pose_schema(cartesian: DataSchema) -> DataSchema:
+    """A pose: x, y, z (mm, as the Cartesian moves take them) and roll, pitch, yaw (deg, fixed axes x, y, z
+    of the base frame, as a URDF's rpy)."""
+    return DataSchema(type="object", required=[*"xyz", *RPY], properties={**(cartesian.properties or {}), **_rpy()},
+                      description="Tip position (mm) and orientation: roll, pitch, yaw in deg about the base "
+                                  "frame's fixed x, y and z axes (as a URDF's rpy).")
 
 
 def plan_input_schema(joints: DataSchema, cartesian: DataSchema) -> DataSchema:
-    """Either a Cartesian target (x, y, z) or `joints` (the joint move's input), never both, never neither."""
-    return DataSchema(type="object", description="Either x, y, z (mm) or joints, as the move actions take them.",
+    """One target of the move actions: a Cartesian one (x, y, z), a pose (x, y, z, roll, pitch, yaw) or
+    `joints`; exactly one."""
+    pose = pose_schema(cartesian)
+    return DataSchema(type="object", description="x, y, z (mm), a pose (x, y, z and roll, pitch, yaw in deg) or "
+                                                 "joints, as the move actions take them.",
                       oneOf=[DataSchema(type="object", title="Cartesian target", required=list("xyz"),
                                         properties=cartesian.properties, additionalProperties=False),
+                             DataSchema(type="object", title="Pose target", required=pose.required,
+                                        properties=pose.properties, additionalProperties=False),
                              DataSchema(type="object", title="Joint target", required=["joints"],
                                         properties={"joints": joints}, additionalProperties=False)])
 
@@ -206,6 +231,13 @@ def robot_td(robot: Robot, low: np.ndarray | None, high: np.ndarray | None, *, n
                                                "where no joint configuration reaches (`unreachable`), where every "
                                                "one found collides (`collision`) or no path is found (`no-path`).",
                                                output),
+            "moveToPose": _action(pose_schema(cartesian), "moveToPose",
+                                  "Move the tip to this position (mm) in this orientation along a collision-free "
+                                  "path (the position within 0.01 mm, the orientation within 0.01 deg); returns when "
+                                  "the motion has finished, with the path and the orientation reached. Refused (422, "
+                                  "nothing moves) where no joint configuration reaches the pose (`unreachable`), "
+                                  "where every one found collides (`collision`) or no path is found (`no-path`).",
+                                  output),
             "planMove": _action(plan_input_schema(joints, cartesian), "planMove",
                                 "A dry run: answers exactly as the move would (path or refusal), from where the "
                                 "arm stands now, without moving.", output, safe=True),

@@ -109,6 +109,7 @@ class RobotThing:
         t.on_read("getCartesianposition", twin.cartesian_position)
         t.on_action("moveToJointPosition", self._move_to_joints)
         t.on_action("moveToCartesianPosition", self._move_to_cartesian)
+        t.on_action("moveToPose", self._move_to_pose)
         t.on_action("planMove", self._plan_move)
         t.on_action("stop", lambda _: {"stopped": twin.stop()})
         t.on_file(TWIN_FILE, lambda: msgspec.json.encode(self.description()), "application/json")
@@ -159,8 +160,18 @@ class RobotThing:
         finally:
             self.publisher.flush()
 
+    def _move_to_pose(self, pose: dict[str, float]) -> dict[str, Any]:
+        try:
+            return self.twin.move_to_pose((pose["x"], pose["y"], pose["z"]),
+                                          (pose["roll"], pose["pitch"], pose["yaw"])).answer(self.twin)
+        finally:
+            self.publisher.flush()
+
     def _plan_move(self, request: dict[str, Any]) -> dict[str, Any]:
-        """The dry run: `{x, y, z}` or `{joints: {...}}`, never both."""
+        """The dry run: `{x, y, z}`, a pose `{x, y, z, roll, pitch, yaw}` or `{joints: {...}}`."""
+        if all(k in request for k in ("x", "y", "z", "roll", "pitch", "yaw")):
+            return self.twin.plan_pose((request["x"], request["y"], request["z"]),
+                                       (request["roll"], request["pitch"], request["yaw"])).answer(self.twin)
         cartesian = [axis for axis in "xyz" if axis in request]
         if cartesian and len(cartesian) < 3:
             raise BadInput(f"planMove: a Cartesian target needs x, y and z (got {', '.join(cartesian)})")
@@ -226,7 +237,8 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
         ee: str | None = None, calibration: str | None = None, max_collision_probability: float | None = None,
         speed: float | None = 1.0, planning_budget: float = 1.0, base_link: str | None = None,
         fixed: dict[str, float] | None = None, packages: dict[str, str] | None = None,
-        allowed_collisions: tuple[tuple[str, str], ...] = (), surface: bool = True) -> None:
+        allowed_collisions: tuple[tuple[str, str], ...] = (), surface: bool = True,
+        scene_robot: str | None = None) -> None:
     """Process entry: one robot in its own World (its scene's static bodies loaded) until `stop` is set.
 
     `base` is where the robot stands in the scene frame (default: the scene's robot placement);
@@ -243,7 +255,7 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
     robot = Robot.load(urdf, ee=ee, base_link=base_link, fixed=fixed,
                        packages={k: Path(v) for k, v in (packages or {}).items()}, allowed_collisions=allowed_collisions)
     log.info("%s: %s", robot.name, robot.describe_chain())
-    the_scene = load_scene(scene) if scene else default_scene(base, surface)
+    the_scene = load_scene(scene, scene_robot) if scene else default_scene(base, surface)
     placement = base or the_scene.robot
     where = Base(placement.position, placement.yaw, placement.roll, placement.pitch)
     cal = load_calibration(calibration) if calibration else None

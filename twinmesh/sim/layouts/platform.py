@@ -20,9 +20,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from twinmesh.messages.scene import Body, RobotModel, SceneDescription
+from twinmesh.robot.surroundings import SCENES_DIR
 from twinmesh.sim.belt import Belt
 from twinmesh.sim.bodies import box, pose
 from twinmesh.sim.compensation import DOBOT_URDF, MODELS, UARM_URDF
@@ -254,7 +256,19 @@ def build_platform(*, speed: float | None = 1.0, dt: float = DEFAULT_DT, snapsho
     return platform
 
 
-if __name__ == "__main__":  # regenerate the calibration pairs from the model
+def write_scene_json(path: Path) -> None:
+    """The platform's scene as its world Thing serves it (`files/scene.json`), for `tdgen --scene`."""
+    platform = build_platform(start=False)
+    try:
+        path.write_bytes(msgspec.json.format(msgspec.json.encode(platform.describe()), indent=1) + b"\n")
+    finally:
+        platform.close()
+
+
+if __name__ == "__main__":  # regenerate the shipped data from the model
     out = MODELS / "uarm-calibration.csv"
     write_calibration_csv(out, UARM_BASE)
     print(f"wrote {out}")
+    scene = SCENES_DIR / "iot-platform.json"
+    write_scene_json(scene)
+    print(f"wrote {scene}")
