@@ -114,3 +114,15 @@ def test_a_piped_csv_holds_only_csv_and_pybullet_speaks_on_stderr_with_v(tmp_pat
     loud = subprocess.run([sys.executable, "-m", "twinmesh", "-v", *command[3:]], capture_output=True, text=True,
                           timeout=120)
     assert loud.stdout == quiet.stdout and "pybullet build time" in loud.stderr
+
+
+def test_a_ceiling_mount_given_as_tilt_or_as_quaternion_is_the_same_mount(tmp_path):
+    common = ["tdgen", "ur10.urdf", "--samples", 800, "--workers", 1, "--no-progress"]
+    tilt = _run(*common, "--out", tmp_path / "tilt", "--base", 0, 0, 2.5, 0, "--base-tilt", 180, 0)
+    quat = _run(*common, "--out", tmp_path / "quat", "--base", 0, 0, 2.5, 0, "--base-quat", 1, 0, 0, 0)
+    assert tilt.exit_code == 0 and quat.exit_code == 0, tilt.output + quat.output
+    scenes = [json.loads((tmp_path / d / "scene.json").read_text()) for d in ("tilt", "quat")]
+    assert scenes[0] == scenes[1] and scenes[0]["robot"]["roll"] == 180.0
+    assert (tmp_path / "tilt" / "points.csv").read_text() == (tmp_path / "quat" / "points.csv").read_text()
+    both = _run(*common, "--out", tmp_path / "x", "--base-tilt", 90, 0, "--base-quat", 0, 0, 0, 1)
+    assert both.exit_code == 2 and "--base-quat gives the whole orientation" in both.output

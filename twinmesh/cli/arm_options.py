@@ -94,16 +94,22 @@ def arm_options(function: Callable) -> Callable:
 
 
 def mount_options(function: Callable) -> Callable:
-    """Adds --base, --base-tilt and --no-surface (below `@click.command`); the command function gets
+    """Adds --base, --base-tilt, --base-quat and --no-surface (below `@click.command`); the command function gets
     `mount: RobotPlacement | None` (None: the scene's placement) and `surface: bool`."""
     @functools.wraps(function)
     def with_mount(*args: Any, base: tuple[float, ...] | None = None, base_tilt: tuple[float, ...] | None = None,
-                   no_surface: bool = False, **kwargs: Any) -> Any:
+                   base_quat: tuple[float, ...] | None = None, no_surface: bool = False, **kwargs: Any) -> Any:
         mount = None
-        if base or base_tilt:
+        if base_quat and (base_tilt or (base and base[3])):
+            raise click.UsageError("--base-quat gives the whole orientation: not with --base-tilt or a --base yaw")
+        if base or base_tilt or base_quat:
             x, y, z, yaw = base or (0.0, 0.0, 0.0, 0.0)
             roll, pitch = base_tilt or (0.0, 0.0)
             mount = RobotPlacement(position=(x, y, z), yaw=yaw, roll=roll, pitch=pitch)
+            if base_quat:
+                if abs(sum(v * v for v in base_quat)) < 1e-12:
+                    raise click.BadParameter("a quaternion of length 0", param_hint="--base-quat")
+                mount = RobotPlacement.from_quaternion((x, y, z), base_quat)  # type: ignore[arg-type]
         return function(*args, mount=mount, surface=not no_surface, **kwargs)
 
     options = [
@@ -113,6 +119,8 @@ def mount_options(function: Callable) -> Callable:
         click.option("--base-tilt", nargs=2, type=float, metavar="ROLL PITCH",
                      help="Tilt of a wall or ceiling mount, deg about x then y (fixed axes, before the yaw; "
                           "--base-tilt 180 0 hangs the arm from the ceiling)."),
+        click.option("--base-quat", nargs=4, type=float, metavar="QX QY QZ QW",
+                     help="The base's whole orientation as a quaternion instead of yaw and tilt."),
         click.option("--no-surface", is_flag=True,
                      help="Without --scene: the robot alone, no mounting surface (by default a floor, wall or ceiling "
                           "slab through the base, across its z axis, keeps the workspace on the reachable side)."),

@@ -16,8 +16,10 @@ Choices a user should know about:
   finger, jaw, claw, thumb or knuckle joint, or a mimic of one; a parallelogram's mimic of
   an arm joint belongs to the arm). From the last arm joint it
   follows the only fixed child, as long as there is exactly one (the Panda's `panda_grasptarget`;
-  a UR's `wrist_3_link`, which has two). Several equally long arms (Baxter's, the PR2's) are an
-  error listing them: pass `ee=` to pick one.
+  a UR's `wrist_3_link`, which has two). Where equally long chains split into three or more
+  branches, or into short ones (4 arm joints at most), they are a hand's fingers and the arm ends
+  at the split (Tiago's palm); two equally long arms (Baxter's, the PR2's) are an error listing
+  them: pass `ee=` to pick one.
 - The end-effector position is the origin of the URDF link frame (pybullet's
   `worldLinkFramePosition`), not the link's centre of mass.
 """
@@ -444,6 +446,9 @@ def _auto_ee(path: Path, base: str, joints: dict[str, UrdfJoint], held: set[str]
                          "--base-link and --ee)")
     best = max(ends.values())
     tips = sorted(link for link, count in ends.items() if count == best)
+    hand = _hand_split(tips, joints, arm) if len(tips) > 1 else None
+    if hand is not None:
+        return hand
     if len(tips) > 1:
         raise RobotError(f"{path}: {len(tips)} arms of {best} joints start at {base!r}, ending at "
                          f"{', '.join(tips)}: pick one with --ee LINK (and --base-link LINK)")
@@ -453,6 +458,28 @@ def _auto_ee(path: Path, base: str, joints: dict[str, UrdfJoint], held: set[str]
         if len(fixed) != 1 or any(arm(j) for j in children.get(link, [])):
             return link
         link = fixed[0].child
+
+
+HAND_BRANCH = 4  # arm joints below a split, at most, for the branches to be a hand's fingers, not arms
+
+
+def _hand_split(tips: list[str], joints: Mapping[str, UrdfJoint], arm: Callable[[UrdfJoint], bool]) -> str | None:
+    """Where equally long chains split, when what follows the split is a hand's fingers (short branches,
+    or three and more alike) rather than arms: the link the arm ends at. None when the tied chains are
+    arms (Baxter's two)."""
+    by_child = {j.child: j for j in joints.values()}
+
+    def ancestry(link: str) -> list[str]:
+        out = [link]
+        while link in by_child:
+            link = by_child[link].parent
+            out.append(link)
+        return out
+
+    lines = [ancestry(t) for t in tips]
+    common = next(link for link in lines[0] if all(link in line for line in lines[1:]))
+    below = [sum(arm(by_child[link]) for link in line[:line.index(common)]) for line in lines]
+    return common if max(below) <= HAND_BRANCH or len(tips) >= 3 else None  # no robot has three equal arms
 
 
 def _limits(j: UrdfJoint) -> tuple[float, float]:
