@@ -38,6 +38,7 @@ class Lab:
     proc: subprocess.Popen
     log: Path
     extra: list[subprocess.Popen] = field(default_factory=list)
+    tmp: Path | None = None  # where a test keeps the lab's logs and its robots'
 
     def cli(self, *args: str, timeout: float = 60, check: bool = False) -> subprocess.CompletedProcess:
         """Run a one-shot `twinmesh` command against this lab."""
@@ -128,6 +129,15 @@ def start_lab(tmp: Path, scene: str | None = "lights", http: bool = True, things
     except BaseException:
         lab.stop()
         raise
+    return lab
+
+
+def start_robot_lab(tmp: Path) -> Lab:
+    """`twinmesh up lights` with the adapter and a fresh tdgen cache in `tmp`: a lab for robots to join
+    (`lab.tmp` is `tmp`, for their logs)."""
+    lab = start_lab(tmp, "lights", http=True, things={"light-left", "light-right", "tdgen"},
+                    extra_args=("--tdgen-cache", str(tmp / "cache")))
+    lab.tmp = tmp
     return lab
 
 

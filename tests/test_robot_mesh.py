@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import trimesh
 from interop import npm
-from labs import start_lab, stop_process
+from labs import start_robot_lab, stop_process
 from tdschema import assert_valid_td
 
 from twinmesh.messages.relations import MODEL, POINTS, SCENE, TWIN, WORKSPACE
@@ -73,10 +73,7 @@ def mesh_client(endpoint: str):
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("robots")
-    lab = start_lab(tmp, "lights", http=True, things={"light-left", "light-right", "tdgen"},
-                    extra_args=("--tdgen-cache", str(tmp / "cache")))
-    lab.tmp = tmp
+    lab = start_robot_lab(tmp_path_factory.mktemp("robots"))
     yield lab
     assert lab.stop(), "the lab did not stop cleanly"
 
@@ -327,7 +324,7 @@ def test_plan_move_answers_like_the_move_over_http_and_the_cli_and_moves_nothing
     assert refused.returncode == 1 and ("outside" in refused.stderr or "maximum" in refused.stderr
                                         or "minimum" in refused.stderr), refused.stderr
     both = http.post("/ur10/actions/planMove", json={**target, "joints": before})
-    assert both.status_code == 400 and "either" in both.json()["detail"]
+    assert both.status_code == 400 and "give one of: Cartesian target (x, y, z), Pose target" in both.json()["detail"]
     assert http.get("/ur10/properties/getJointposition").json() == before
 
 

@@ -23,7 +23,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 import trimesh
-from labs import start_lab, stop_process
+from labs import start_robot_lab, stop_process
 
 from twinmesh.robot import ik
 from twinmesh.robot.kinematics import ForwardKinematics
@@ -175,10 +175,7 @@ def _robot_args(name: str) -> list[str]:
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("zoo")
-    lab = start_lab(tmp, "lights", http=True, things={"light-left", "light-right", "tdgen"},
-                    extra_args=("--tdgen-cache", str(tmp / "cache")))
-    lab.tmp = tmp
+    lab = start_robot_lab(tmp_path_factory.mktemp("zoo"))
     yield lab
     assert lab.stop(), "the lab did not stop cleanly"
 
