@@ -201,6 +201,7 @@ def test_every_zoo_arm_joins_a_lab_gets_its_td_generated_and_moves(lab):
             for name in batch:
                 td = _generated_td(http, name, lab.tmp / f"{name}.log")
                 base, tip, n = ZOO[name][2]
+                assert f"arm chain {base} -> {tip}: {n} joints" in (lab.tmp / f"{name}.log").read_text()  # said
                 joints = td["properties"]["getJointposition"]["properties"]
                 assert len(joints) == n and f"{base} to the tip link {tip}" in \
                     td["properties"]["getJointposition"]["description"]

@@ -128,3 +128,14 @@ def test_a_xacro_file_is_expanded_with_its_packages_found_as_for_meshes(tmp_path
     robot = Robot.load(path, packages={"my_arm_description": package})
     assert [j.name for j in robot.joints] == ["j1", "j2", "j3"] and robot.urdf_path.name == "macro_arm.urdf"
     assert str(package / "meshes" / "link.stl") in robot.urdf_path.read_text()
+
+
+@pytest.mark.parametrize("arm", ["ur5e", "ur3e"])
+def test_airo_models_urs_with_drake_attributes_load_as_they_come(arm):
+    """airo-models ships UR URDFs with `drake:` attributes (no namespace declared), which an XML parser
+    refuses and urdfdom and pybullet ignore: they load, the right chain, meshes found."""
+    airo_models = pytest.importorskip("airo_models", reason="airo-models is a test extra")
+    path = Path(airo_models.__file__).parent / "arms" / arm / f"{arm}.urdf"
+    assert "drake:" in path.read_text()
+    robot = Robot.load(path)
+    assert (robot.base_link, robot.ee_link, len(robot.joints)) == ("base_link", "tool0", 6)

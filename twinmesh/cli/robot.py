@@ -59,6 +59,6 @@ def robot_command(settings: MeshSettings, urdf: str, scene: str | None, name: st
     try:
         run(settings, install_stop_handlers(), urdf, name, scene, mount, samples, seed, arm.ee, calibration,
             max_collision_probability, _speed(speed), planning_budget, arm.base_link, arm.fixed, arm.packages,
-            arm.allowed_collisions, surface, scene_robot)
+            arm.allowed_collisions, surface, scene_robot, announce=lambda line: click.echo(line, err=True))
     except USER_ERRORS as e:
         raise usage_exit(str(e)) from None

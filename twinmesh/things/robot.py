@@ -31,7 +31,7 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import msgspec
 
@@ -238,7 +238,7 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
         speed: float | None = 1.0, planning_budget: float = 1.0, base_link: str | None = None,
         fixed: dict[str, float] | None = None, packages: dict[str, str] | None = None,
         allowed_collisions: tuple[tuple[str, str], ...] = (), surface: bool = True,
-        scene_robot: str | None = None) -> None:
+        scene_robot: str | None = None, announce: Callable[[str], None] | None = None) -> None:
     """Process entry: one robot in its own World (its scene's static bodies loaded) until `stop` is set.
 
     `base` is where the robot stands in the scene frame (default: the scene's robot placement);
@@ -254,7 +254,7 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
 
     robot = Robot.load(urdf, ee=ee, base_link=base_link, fixed=fixed,
                        packages={k: Path(v) for k, v in (packages or {}).items()}, allowed_collisions=allowed_collisions)
-    log.info("%s: %s", robot.name, robot.describe_chain())
+    (announce or log.info)(f"{robot.name}: {robot.describe_chain()}")
     the_scene = load_scene(scene, scene_robot) if scene else default_scene(base, surface)
     placement = base or the_scene.robot
     where = Base(placement.position, placement.yaw, placement.roll, placement.pitch)
