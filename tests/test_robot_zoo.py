@@ -113,6 +113,7 @@ def test_a_mostly_colliding_workspace_is_said_and_allowed_pairs_free_it(tmp_path
     urdf = ROBOTS / "baxter_description/urdf/baxter.urdf"
     plain = generate(Robot.load(urdf, ee="left_wrist"), None, 800, seed=0, out_dir=tmp_path / "a", workers=1)
     assert plain.warnings and "of the samples collide" in plain.warnings[0]
+    assert f"Warning: {plain.warnings[0]}" in plain.td["description"]  # said in the TD a lab serves too
     assert any("collides at rest" in w and "left_upper_forearm / left_upper_elbow_visual" in w for w in plain.warnings)
     allowed = Robot.load(urdf, ee="left_wrist", allowed_collisions=[("left_upper_forearm", "left_upper_elbow_visual"),
                                                                      ("left_upper_shoulder", "left_upper_elbow")])

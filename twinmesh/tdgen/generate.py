@@ -152,6 +152,7 @@ def generate(robot: Robot | str | Path, scene: Scene | str | Path | None = None,
                                                 ("points", "points.csv"), ("workspace", "workspace.stl"),
                                                 ("scene", "scene.json"))}
     description = _description(robot, scene, sampled, seed, hull.volume, calibration, frame)
+    description += "".join(f" Warning: {w}." for w in warnings)  # a lab's user reads it in the TD
     td = robot_td(robot, low, high, name=thing, frame=frame, thing_id=thing_id, description=description,
                   version=version)
     files[kind].write_bytes(_json(served_td(td, base_url, security) if base_url else thing_model(td, thing, security)))
