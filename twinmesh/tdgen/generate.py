@@ -98,8 +98,8 @@ def generate(robot: Robot | str | Path, scene: Scene | str | Path | None = None,
              calibration: Calibration | str | Path | None = None, frame: Frame = "twin", concave: bool = False,
              progress: bool = False, *, name: str | None = None, thing_id: str | None = None,
              ee: str | None = None, workers: int | None = None, calibration_model: Model = "auto",
-             on_progress: Callable[[float], None] | None = None, version: int = 0,
-             security: Security = NOSEC, mount: RobotPlacement | None = None, surface: bool = True) -> GenerationResult:
+             on_progress: Callable[[float], None] | None = None, security: Security = NOSEC,
+             mount: RobotPlacement | None = None, surface: bool = True) -> GenerationResult:
     """Generate a robot's TD and workspace artefacts into `out_dir`.
 
     `robot` is a Robot or a URDF path (`ee` then picks the end-effector link); `scene` a Scene, a
@@ -153,8 +153,7 @@ def generate(robot: Robot | str | Path, scene: Scene | str | Path | None = None,
                                                 ("scene", "scene.json"))}
     description = _description(robot, scene, sampled, seed, hull.volume, calibration, frame)
     description += "".join(f" Warning: {w}." for w in warnings)  # a lab's user reads it in the TD
-    td = robot_td(robot, low, high, name=thing, frame=frame, thing_id=thing_id, description=description,
-                  version=version)
+    td = robot_td(robot, low, high, name=thing, frame=frame, thing_id=thing_id, description=description)
     files[kind].write_bytes(_json(served_td(td, base_url, security) if base_url else thing_model(td, thing, security)))
     files["robot-info"].write_bytes(_json(robot.info()))
     write_points_csv(files["points"], robot, sampled)
