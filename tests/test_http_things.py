@@ -111,3 +111,36 @@ def test_well_known_wot_is_a_thing_directory(lab):
 
 def test_root_lists_the_td_urls(lab):
     assert httpx.get(lab.http + "/").json() == [f"{lab.http}/{t}" for t in THINGS]
+
+
+def test_tds_and_listings_carry_an_etag_and_answer_304_when_the_client_has_them(lab):
+    for path in ("/light-left", "/things", "/.well-known/wot", "/things/" + quote("urn:twinmesh:thing:light-left",
+                                                                                    safe="")):
+        first = httpx.get(lab.http + path)
+        tag = first.headers["etag"]
+        assert first.status_code == 200 and tag.startswith('"') and first.content
+        again = httpx.get(lab.http + path, headers={"If-None-Match": tag})
+        assert again.status_code == 304 and again.content == b"" and again.headers["etag"] == tag, path
+        other = httpx.get(lab.http + path, headers={"If-None-Match": '"something-else"'})
+        assert other.status_code == 200 and other.content == first.content
+
+
+def test_several_properties_are_read_and_written_at_once_all_or_nothing(lab):
+    url = f"{lab.http}/light-left/properties"
+    td = httpx.get(f"{lab.http}/light-left").json()
+    ops = {op for form in td["forms"] for op in ([form["op"]] if isinstance(form["op"], str) else form["op"])}
+    assert {"readmultipleproperties", "writemultipleproperties", "writeallproperties"} <= ops
+    r = httpx.put(url, json={"lightState": True, "lightColor": [0.1, 0.2, 0.3]})
+    assert r.status_code == 204, r.text
+    assert httpx.get(url).json() == {"lightState": True, "lightColor": [0.1, 0.2, 0.3]}
+    assert httpx.get(url, params={"names": "lightColor"}).json() == {"lightColor": [0.1, 0.2, 0.3]}
+    bad = httpx.put(url, json={"lightState": False, "lightColor": [2, 0, 0]})  # one value breaks its schema
+    assert bad.status_code == 400 and "lightColor" in bad.json()["detail"]
+    assert httpx.get(url).json()["lightState"] is True, "nothing is written when one value is bad"
+    for body, words in (({"lightState": False, "brightness": 3}, "no property 'brightness'"), ({}, "required"),
+                        ([True], "expected object")):
+        r = httpx.put(url, json=body)
+        assert r.status_code == 400 and words in r.json()["detail"], (body, r.text)
+    assert httpx.get(url, params={"names": "nope"}).status_code == 400
+    assert httpx.put(url, json={"lightState": False}).status_code == 204  # a subset: writemultipleproperties
+    assert httpx.get(url).json()["lightState"] is False

@@ -1,7 +1,8 @@
 """Every TD tells the truth: each form of every TD the `iot-lab` serves, performed with its op's method.
 
 A WoT client believes the TD. So for every Thing the adapter lists (and the directory's own TD):
-reads answer JSON that fits the property's schema; writes of a valid value are taken; a property
+reads answer JSON that fits the property's schema (one, several, all); writes of a valid value are
+taken (one, all at once); a property
 without a write form refuses PUT with 405 and `Allow` (and one without a read form, GET); long-poll
 observe forms do not answer at once like a read; SSE forms open an event stream; every action is
 invoked with a value its input schema accepts and answers with its output schema, or refuses with
@@ -229,14 +230,30 @@ class Walk:
     def thing_forms(self) -> None:
         for form in self.td.get("forms", []):
             url, kinds = href(form, self.td, self.ids), ops(form)
+            readable = {n for n, p in self.td.get("properties", {}).items()
+                        if any("readproperty" in ops(f) for f in p["forms"])}
             if "readallproperties" in kinds:
                 r = self.http.get(url)
                 self.performed += 1
                 values = self.json_of("forms/readallproperties", r, {"type": "object"}) or {}
-                readable = {n for n, p in self.td["properties"].items()
-                            if any("readproperty" in ops(f) for f in p["forms"])}
                 if set(values) != readable:
                     self.wrong("forms/readallproperties", f"answered {sorted(values)}, the TD reads {sorted(readable)}")
+            if "readmultipleproperties" in kinds and readable:
+                name = sorted(readable)[0]
+                r = self.http.get(url, params={"names": name})
+                self.performed += 1
+                values = self.json_of("forms/readmultipleproperties", r, {"type": "object"}) or {}
+                if set(values) != {name}:
+                    self.wrong("forms/readmultipleproperties", f"asked for {name!r}, answered {sorted(values)}")
+            if "writeallproperties" in kinds:
+                writable = {n: p for n, p in self.td["properties"].items()
+                            if any("writeproperty" in ops(f) for f in p["forms"])}
+                now = self.http.get(url).json()
+                body = {n: now[n] if n in now else example(p) for n, p in writable.items()}
+                r = self.http.put(url, json=body)
+                self.performed += 1
+                if not 200 <= r.status_code < 300:
+                    self.check_error("forms/writeallproperties", r, REFUSALS)
             if {"observeallproperties", "subscribeallevents"} & set(kinds):
                 self.stream_opens(f"forms/{kinds[0]}", url)
 

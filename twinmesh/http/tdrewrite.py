@@ -8,7 +8,8 @@ HTTP view of it, so it never drifts from what the device serves. Form layout, pe
   form whose `op` matches and its SSE client cannot send credentials (see `auth.py`);
 - action: `invokeaction` POST on `/{thing}/actions/{a}`;
 - event: long-poll on `/{thing}/events/{e}`, then SSE on `.../{e}/sse`;
-- Thing level: `readallproperties` on `/{thing}/properties`, and the W3C-profile style
+- Thing level: `readallproperties`/`readmultipleproperties` (`?names=a,b`) GET and, with a writable
+  property, `writeallproperties`/`writemultipleproperties` PUT on `/{thing}/properties`; the W3C-profile style
   `observeallproperties` / `subscribeallevents` SSE streams (named events) on `/{thing}/properties`
   and `/{thing}/events` (asked for with `Accept: text/event-stream`).
 """
@@ -54,7 +55,11 @@ def http_td(td: ThingDescription, thing: str, base: str, security: Security = NO
     props = {n: _property(p, f"{url}/properties/{n}") for n, p in td.properties.items()}
     actions = {n: _action(a, f"{url}/actions/{n}") for n, a in td.actions.items()}
     events = {n: _event(e, f"{url}/events/{n}") for n, e in td.events.items()}
-    forms = [Form(href=f"{url}/properties", op="readallproperties", contentType=JSON)] if props else []
+    forms = [Form(href=f"{url}/properties", op=["readallproperties", "readmultipleproperties"], contentType=JSON)
+             ] if props else []
+    if any(not p.readOnly for p in td.properties.values()):
+        forms.append(Form(href=f"{url}/properties", op=["writeallproperties", "writemultipleproperties"],
+                          contentType=JSON))
     if any(p.observable for p in td.properties.values()):
         forms.append(Form(href=f"{url}/properties", op=["observeallproperties", "unobserveallproperties"],
                           subprotocol="sse", contentType=JSON))

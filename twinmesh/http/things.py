@@ -9,10 +9,12 @@
 | `GET /{thing}` | the Thing's TD |
 | `GET /{thing}/files/{name}` | a linked file, with the content type the device gave it |
 
-TDs are `application/td+json` whatever the Accept header says (node-wot asks with `*/*`).
+TDs are `application/td+json` whatever the Accept header says (node-wot asks with `*/*`). TDs and
+listings carry an `ETag` (a hash of the body); `If-None-Match` with it answers 304 without a body.
 """
 from __future__ import annotations
 
+import hashlib
 import re
 
 import msgspec
@@ -34,8 +36,18 @@ async def _td_bytes(request: Request, thing: str) -> bytes:
     return reg.render(thing, base, lambda td, source: msgspec.json.encode(http_td(td, thing, base, sec, source)))
 
 
+def _etagged(request: Request, body: bytes, media_type: str, headers: dict[str, str] | None = None) -> Response:
+    """`body` with its ETag, or 304 when the client already has it (If-None-Match)."""
+    tag = f'"{hashlib.sha256(body).hexdigest()[:32]}"'
+    headers = {**(headers or {}), "ETag": tag}
+    wanted = {t.strip().removeprefix("W/") for t in request.headers.get("if-none-match", "").split(",")}
+    if tag in wanted or "*" in wanted:
+        return Response(status_code=304, headers=headers)
+    return Response(body, media_type=media_type, headers=headers)
+
+
 async def thing_description(request: Request) -> Response:
-    return Response(await _td_bytes(request, thing_name(request)), media_type=TD_JSON)
+    return _etagged(request, await _td_bytes(request, thing_name(request)), TD_JSON)
 
 
 async def index(request: Request) -> Response:
@@ -45,7 +57,7 @@ async def index(request: Request) -> Response:
 
 async def well_known(request: Request) -> Response:
     body = directory_td(base_url(request), registry(request).keys.prefix)
-    return Response(msgspec.json.encode(body), media_type=TD_JSON)
+    return _etagged(request, msgspec.json.encode(body), TD_JSON)
 
 
 def _page_arg(request: Request, name: str, minimum: int) -> int | None:
@@ -74,7 +86,7 @@ async def listing(request: Request) -> Response:
     headers = {}
     if limit is not None and offset + limit < len(names):
         headers["Link"] = f'</things?offset={offset + limit}&limit={limit}>; rel="next"'
-    return Response(b"[" + b",".join(tds) + b"]", media_type=LD_JSON, headers=headers)
+    return _etagged(request, b"[" + b",".join(tds) + b"]", LD_JSON, headers)
 
 
 async def by_id(request: Request) -> Response:
@@ -82,7 +94,7 @@ async def by_id(request: Request) -> Response:
     wanted = request.path_params["id"]
     for name, td in registry(request).known_tds().items():
         if served_id(td, name) == wanted:
-            return Response(await _td_bytes(request, name), media_type=TD_JSON)
+            return _etagged(request, await _td_bytes(request, name), TD_JSON)
     raise NotFound(f"no TD with id {wanted!r}")
 
 
