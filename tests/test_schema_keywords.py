@@ -16,6 +16,8 @@ import httpx
 import pytest
 from labs import start_lab
 
+from twinmesh.wot.problem import Refused
+
 PROBLEM = "application/problem+json"
 GOOD = {"step": 10, "target": "home", "config": {"a": 1}, "when": "2026-11-23T10:00:00Z", "tags": ["a"]}
 # property, a value the schema forbids, words the detail must hold
@@ -79,6 +81,12 @@ def device(lab):
         thing = ExposedThing(session, SOURCE_TD, "keywords", settings.keys)
         for name in GOOD:
             thing.on_read(name, lambda n=name: state[n]).on_write(name, lambda v, n=name: state.__setitem__(n, v))
+
+        def write_tags(tags: list[str]) -> None:  # a device that refuses a valid value (422), for the all-or-nothing test
+            if "refused" in tags:
+                raise Refused("keywords: the tag 'refused' is refused by the device", reason="refused-tag")
+            state["tags"] = tags
+        thing.on_write("tags", write_tags)
         thing.on_read("history", lambda: [])
         thing.on_action("goTo", lambda where: state["calls"].append(where) or "ok")
         with thing:
@@ -166,3 +174,14 @@ def test_our_own_tds_lose_nothing_through_the_adapter(lab, zenoh):
         source = json.loads(zenoh.td_bytes(thing))
         served = httpx.get(f"{lab.http}/{thing}").json()
         assert _lost(source, served) == [], thing
+
+
+def test_a_multi_property_write_a_device_refuses_halfway_puts_back_what_it_wrote(lab, device):
+    """writemultipleproperties is all or nothing even when the device refuses a valid value: `step` is
+    written first, `tags` refused (422), and `step` gets its old value back."""
+    before = {"step": device["step"], "tags": device["tags"]}
+    r = httpx.put(f"{lab.http}/keywords/properties", json={"step": before["step"] + 5, "tags": ["refused"]})
+    assert r.status_code == 422 and r.json()["reason"] == "refused-tag", r.text
+    assert {"step": device["step"], "tags": device["tags"]} == before
+    ok = httpx.put(f"{lab.http}/keywords/properties", json={"step": before["step"] + 5, "tags": ["fine"]})
+    assert ok.status_code == 204 and device["step"] == before["step"] + 5 and device["tags"] == ["fine"]
