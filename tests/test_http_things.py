@@ -144,3 +144,55 @@ def test_several_properties_are_read_and_written_at_once_all_or_nothing(lab):
     assert httpx.get(url, params={"names": "nope"}).status_code == 400
     assert httpx.put(url, json={"lightState": False}).status_code == 204  # a subset: writemultipleproperties
     assert httpx.get(url).json()["lightState"] is False
+
+
+def test_the_directory_tells_when_a_thing_comes_changes_and_goes(lab):
+    """WoT Discovery notifications as SSE on /events: a Thing joining, its TD replaced, the Thing leaving."""
+    import json
+    import queue
+    import threading
+    import time
+
+    from twinmesh.fabric.server import ExposedThing
+    from twinmesh.fabric.session import open_session
+    from twinmesh.fabric.settings import MeshSettings
+    from twinmesh.wot.td import decode_td
+
+    got: queue.Queue = queue.Queue()
+
+    def listen() -> None:
+        with httpx.stream("GET", f"{lab.http}/events", timeout=httpx.Timeout(5, read=30)) as r:
+            got.put(("status", r.status_code))
+            event = None
+            for line in r.iter_lines():
+                if line.startswith("event: "):
+                    event = line.removeprefix("event: ")
+                elif line.startswith("data: ") and event:
+                    got.put((event, json.loads(line.removeprefix("data: "))))
+
+    threading.Thread(target=listen, daemon=True).start()
+    assert got.get(timeout=10) == ("status", 200)
+    directory = httpx.get(f"{lab.http}/.well-known/wot").json()
+    assert set(directory["events"]) == {"thing_created", "thing_updated", "thing_deleted"}
+    td = {"title": "visitor", "properties": {"mood": {"type": "string", "readOnly": True}}}
+    settings = MeshSettings(connect=(lab.endpoint,))
+    seen = []
+
+    def next_about_visitor() -> tuple[str, dict]:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            kind, data = got.get(timeout=20)
+            if data.get("title") == "visitor":
+                seen.append(kind)
+                return kind, data
+        raise AssertionError(f"no event about the visitor; seen {seen}")
+
+    with open_session(settings) as session:
+        thing = ExposedThing(session, td, "visitor", settings.keys)
+        thing.on_read("mood", lambda: "curious")
+        with thing:
+            kind, data = next_about_visitor()
+            assert kind == "thing_created" and data["id"] == "urn:twinmesh:thing:visitor"
+            thing.update_td(decode_td({**td, "description": "now described"}))
+            assert next_about_visitor()[0] == "thing_updated"
+        assert next_about_visitor()[0] == "thing_deleted"

@@ -81,7 +81,7 @@ def parse_auth(spec: str | None) -> Auth | None:
 def is_public(path: str) -> bool:
     """Discovery paths: the TDs and the directory (see the module docstring)."""
     segments = [s for s in path.split("/") if s]
-    return len(segments) <= 1 or segments[0] in ("things", ".well-known")
+    return len(segments) <= 1 or segments[0] in ("things", ".well-known", "events")
 
 
 class AuthMiddleware:

@@ -34,13 +34,14 @@ from twinmesh.fabric.keys import SLUG as SLUG
 from twinmesh.fabric.settings import MeshSettings
 from twinmesh.http.observers import Change, Feed, Observers
 from twinmesh.http.problems import unavailable
-from twinmesh.http.tdrewrite import with_types
+from twinmesh.http.tdrewrite import served_id, with_types
 from twinmesh.wot.payload import JSON_ERRORS, decode_json
 from twinmesh.wot.problem import BadGateway, BadInput, NotFound, Problem, Unavailable
 from twinmesh.wot.td import ThingDescription, decode_td
 from twinmesh.wot.validate import validate
 
 log = logging.getLogger(__name__)
+DIRECTORY = "/directory"  # the feeds of the directory's own notifications (never a Thing name: those are slugs)
 
 
 @dataclass
@@ -166,6 +167,8 @@ class Registry:
         if entry.fetch:
             entry.fetch.cancel()
         self.observers.thing_left(thing)
+        if entry.td is not None:
+            self._directory_event("thing_deleted", entry)
         log.info("%s left the mesh", thing)
 
     def _on_sample(self, thing: str, kind: str, name: str, payload: bytes) -> None:
@@ -238,6 +241,8 @@ class Registry:
         log.warning("%s: no TD after %d attempts (%s)", entry.name, self.fetch_attempts, last)
 
     def _set_td(self, entry: ThingEntry, payload: bytes) -> None:
+        known = entry.td is not None and entry.source is not None
+        unchanged = known and entry.source == _json_or_none(payload)
         try:
             entry.td, entry.td_error = with_types(decode_td(payload)), None
             entry.source = msgspec.json.decode(payload)
@@ -246,6 +251,14 @@ class Registry:
             log.warning(entry.td_error)
         entry.values.clear()
         entry.rendered.clear()
+        if entry.td_error is None and not unchanged:
+            self._directory_event("thing_updated" if known else "thing_created", entry)
+
+    def _directory_event(self, kind: str, entry: ThingEntry) -> None:
+        """The directory's notification (WoT Discovery): `{id, title}` of the Thing that came, changed or went."""
+        assert entry.td is not None
+        data = {"id": served_id(entry.td, entry.name), "title": entry.name}
+        self.observers.publish(DIRECTORY, "events", Change(kind, msgspec.json.encode(data), time.time()))
 
     @staticmethod
     def _observable(entry: ThingEntry, prop: str) -> bool:
@@ -342,6 +355,13 @@ class Registry:
         """A feed of the named properties' changes or events, registered on entry (call after `td()`)."""
         self._entry(thing)
         return self.observers.watch(thing, kind, names)
+
+
+def _json_or_none(payload: bytes) -> Any:
+    try:
+        return msgspec.json.decode(payload)
+    except msgspec.DecodeError:
+        return None
 
 
 def _resolve(future: asyncio.Future[None] | None) -> None:

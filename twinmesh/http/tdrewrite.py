@@ -165,8 +165,9 @@ def _link(link: Link, url: str, thing: str) -> Link:
 def directory_td(base: str, prefix: str) -> dict[str, Any]:
     """The adapter's own TD at `/.well-known/wot`: a Thing Description Directory (WoT Discovery TM).
 
-    Read-only subset of the TDD Thing Model: the `things` listing and `retrieveThing`. Discovery is
-    public, so it is `nosec` even when the Things' affordances need credentials.
+    Read-only subset of the TDD Thing Model: the `things` listing, `retrieveThing` and the
+    notifications (`thing_created`, `thing_updated`, `thing_deleted`, SSE). Discovery is public, so
+    it is `nosec` even when the Things' affordances need credentials.
     """
     no_query = {"description": "Invalid query arguments", "contentType": "application/problem+json",
                 "htv:statusCodeValue": 400}
@@ -199,6 +200,17 @@ def directory_td(base: str, prefix: str) -> dict[str, Any]:
                            "additionalResponses": [no_query]}],
             },
         },
+        "forms": [{"href": f"{base}/events", "op": ["subscribeallevents", "unsubscribeallevents"],
+                   "subprotocol": "sse", "contentType": JSON}],
+        "events": {name: {
+            "description": what, "data": {"type": "object", "required": ["id", "title"], "properties": {
+                "id": {"type": "string", "format": "iri-reference", "description": "The Thing's TD id"},
+                "title": {"type": "string", "description": "The Thing's name on the adapter"}}},
+            "forms": [{"href": f"{base}/events/{name}", "op": ["subscribeevent", "unsubscribeevent"],
+                       "subprotocol": "sse", "contentType": JSON}]}
+            for name, what in (("thing_created", "A Thing joined the mesh and its TD is served"),
+                               ("thing_updated", "A Thing's TD changed (a robot's regenerated workspace)"),
+                               ("thing_deleted", "A Thing left the mesh"))},
         "actions": {
             "retrieveThing": {
                 "description": "Retrieve a Thing Description",

@@ -6,6 +6,7 @@
 | `GET /.well-known/wot` | the directory's own TD (a WoT Discovery Thing Description Directory) |
 | `GET /things?offset=&limit=` | all TDs, a TDD listing (`application/ld+json` array; `Link: rel=next` when paged) |
 | `GET /things/{id}` | one TD by its (URL-encoded) `id` |
+| `GET /events`, `/events/{type}` | directory notifications (SSE): `thing_created`, `_updated`, `_deleted`, `{id, title}` |
 | `GET /{thing}` | the Thing's TD |
 | `GET /{thing}/files/{name}` | a linked file, with the content type the device gave it |
 
@@ -23,7 +24,8 @@ from starlette.responses import Response
 from starlette.routing import Route
 
 from twinmesh.http.context import base_url, registry, security, thing_name
-from twinmesh.http.gateway import NAME
+from twinmesh.http.gateway import DIRECTORY, NAME
+from twinmesh.http.streams import EventStream
 from twinmesh.http.tdrewrite import LD_JSON, TD_JSON, directory_td, http_td, served_id
 from twinmesh.wot.problem import BadInput, NotFound, Problem
 from twinmesh.wot.td import JSON
@@ -98,6 +100,19 @@ async def by_id(request: Request) -> Response:
     raise NotFound(f"no TD with id {wanted!r}")
 
 
+DIRECTORY_EVENTS = ("thing_created", "thing_updated", "thing_deleted")
+
+
+async def directory_events(request: Request) -> Response:
+    """The TDD notifications (WoT Discovery): a Thing joined, its TD changed (a robot's regenerated
+    workspace), or it left; one named SSE event each, `{id, title}` as data."""
+    kind = request.path_params.get("type")
+    if kind is not None and kind not in DIRECTORY_EVENTS:
+        raise NotFound(f"no directory event {kind!r} (there are {', '.join(DIRECTORY_EVENTS)})")
+    names = [kind] if kind else list(DIRECTORY_EVENTS)
+    return EventStream(registry(request).observers.watch(DIRECTORY, "events", names), named=True)
+
+
 async def linked_file(request: Request) -> Response:
     thing = thing_name(request)
     name = request.path_params["name"]
@@ -112,6 +127,8 @@ routes_top = [
     Route("/.well-known/wot", well_known, methods=["GET"]),
     Route("/things", listing, methods=["GET"]),
     Route("/things/{id:path}", by_id, methods=["GET"]),
+    Route("/events", directory_events, methods=["GET"]),
+    Route("/events/{type}", directory_events, methods=["GET"]),
 ]
 routes_thing = [
     Route("/{thing}", thing_description, methods=["GET"]),
