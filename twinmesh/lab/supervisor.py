@@ -1,8 +1,11 @@
-"""Run a lab as separate processes (spawned, never forked) and stop every one of them cleanly.
+"""Run a lab as separate processes (spawned, never forked), restart what crashes, stop them all cleanly.
 
 Each process runs `target(settings, stop, **kwargs)`; SIGINT/SIGTERM set `stop`, the target
 closes its sessions and returns. The supervisor forwards Ctrl-C/SIGTERM, waits, then escalates
-(terminate, kill) so that no process is left behind.
+(terminate, kill) so that no process is left behind. A process that ends on its own while the lab
+runs is started again, after a pause that doubles with each crash (`RESTART_BACKOFF`), while the
+others keep serving; one that crashes `MAX_CRASHES` times within `CRASH_WINDOW` seconds stops the
+lab. A restarted world starts from its scene's initial state.
 """
 from __future__ import annotations
 
@@ -25,6 +28,8 @@ log = logging.getLogger(__name__)
 
 
 SAME_CTRL_C = 1.0  # s a child's exit may precede the lab's own stop signal and still be part of it
+RESTART_BACKOFF = (0.5, 8.0)  # s before a crashed process starts again: first pause, longest pause
+MAX_CRASHES, CRASH_WINDOW = 5, 60.0  # this many crashes of one process within this many seconds stop the lab
 
 
 @dataclass(frozen=True)
@@ -118,19 +123,22 @@ class Supervisor:
         self.specs = specs
         self.grace = grace
         self.procs: dict[str, BaseProcess] = {}
+        self.crashes: dict[str, list[float]] = {}  # per process, when it crashed (monotonic)
         self._ctx = mp.get_context("spawn")
         self.stop = StopEvent()
 
     def start(self) -> None:
         """Spawn every process; from here on SIGINT/SIGTERM set `self.stop` (call from the main thread)."""
         self.stop = install_stop_handlers()
+        for spec in self.specs:
+            self._spawn(spec)
+
+    def _spawn(self, spec: ProcessSpec) -> None:
         payload = msgspec.json.encode(self.settings)
         level = logging.getLogger().getEffectiveLevel()
-        for spec in self.specs:
-            p = self._ctx.Process(target=_child, args=(spec, payload, level, os.getpid()), name=spec.name,
-                                  daemon=False)
-            p.start()
-            self.procs[spec.name] = p
+        p = self._ctx.Process(target=_child, args=(spec, payload, level, os.getpid()), name=spec.name, daemon=False)
+        p.start()
+        self.procs[spec.name] = p
 
     def dead(self) -> str | None:
         """A sentence naming a process that exited on its own, or None while all run."""
@@ -140,16 +148,35 @@ class Supervisor:
         return None
 
     def run_until_stopped(self) -> int:
-        """Block until a signal or a child exits on its own; then stop all. Returns an exit code."""
+        """Block until a signal, restarting children that exit on their own, then stop all. Returns
+        an exit code: 1 when a child kept crashing."""
         failed = ""
+        due: dict[str, float] = {}  # crashed processes -> when they start again
         while not self.stop.wait(0.2):
-            dead = [n for n, p in self.procs.items() if not p.is_alive()]
+            dead = [n for n, p in self.procs.items() if not p.is_alive() and n not in due]
             if dead and self.stop.wait(SAME_CTRL_C):  # a terminal's Ctrl-C reaches the children too, and
                 break                                # one may end before our own handler has run
-            if dead:
-                failed = dead[0]
-                log.error("process %s exited (code %s); stopping the lab", failed, self.procs[failed].exitcode)
+            now = time.monotonic()
+            for name in dead:
+                crashes = [t for t in self.crashes.get(name, []) if now - t < CRASH_WINDOW] + [now]
+                self.crashes[name] = crashes
+                code = self.procs[name].exitcode
+                if len(crashes) >= MAX_CRASHES:
+                    failed = name
+                    log.error("process %s exited (code %s), its %d%s crash within %.0f s; stopping the lab",
+                              name, code, len(crashes), _ordinal(len(crashes)), CRASH_WINDOW)
+                    break
+                pause = min(RESTART_BACKOFF[0] * 2 ** (len(crashes) - 1), RESTART_BACKOFF[1])
+                log.error("process %s exited (code %s); starting it again in %.1f s (crash %d of %d allowed "
+                          "within %.0f s)", name, code, pause, len(crashes), MAX_CRASHES - 1, CRASH_WINDOW)
+                due[name] = now + pause
+            if failed:
                 break
+            for name, when in list(due.items()):
+                if time.monotonic() >= when:
+                    del due[name]
+                    self._spawn(next(s for s in self.specs if s.name == name))
+                    log.warning("process %s started again", name)
         self.shutdown()
         return 1 if failed else 0
 
@@ -165,3 +192,7 @@ class Supervisor:
                 log.warning("process %s did not stop in %.0f s; killing it", p.name, self.grace)
                 p.kill()
                 p.join()
+
+
+def _ordinal(n: int) -> str:
+    return {1: "st", 2: "nd", 3: "rd"}.get(n if n < 20 else n % 10, "th")

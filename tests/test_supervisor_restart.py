@@ -1,0 +1,79 @@
+"""A crashed part of a lab is started again while the rest keep serving; one that keeps crashing stops the lab.
+
+A real `twinmesh up lights`: the lights' process is killed with SIGKILL (found in `ps` by its title,
+`twinmesh: lights`), its Things leave and come back, and the adapter, router and tdgen keep their
+processes. Killed five times within a minute, the lab stops and says why.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import httpx
+import psutil
+import pytest
+from labs import start_lab
+
+
+def _lights_process(lab, not_pid: int | None = None) -> psutil.Process | None:
+    """The lab's `twinmesh: lights` child (its title, as `ps` shows it), other than `not_pid`; None when
+    the lab has ended."""
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and lab.proc.poll() is None:
+        for child in psutil.Process(lab.proc.pid).children(recursive=True):
+            try:
+                if child.pid != not_pid and child.status() != psutil.STATUS_ZOMBIE and \
+                        "twinmesh: lights" in " ".join(child.cmdline()):
+                    return child
+            except psutil.Error:  # gone, or a zombie, while we looked
+                continue
+        time.sleep(0.1)
+    if lab.proc.poll() is None:
+        raise AssertionError("no `twinmesh: lights` process under the lab")
+    return None
+
+
+def _reads(lab) -> bool:
+    try:
+        return httpx.get(f"{lab.http}/light-left/properties/lightState", timeout=2).status_code == 200
+    except httpx.HTTPError:
+        return False
+
+
+@pytest.fixture
+def lab(tmp_path):
+    lab = start_lab(tmp_path, "lights", things={"light-left", "light-right", "tdgen"})
+    yield lab
+    lab.stop()
+
+
+def test_a_killed_device_process_is_started_again_and_the_rest_keep_serving(lab):
+    others = {p.pid for p in psutil.Process(lab.proc.pid).children(recursive=True)}
+    victim = _lights_process(lab)
+    os.kill(victim.pid, signal.SIGKILL)
+    gone = time.monotonic()
+    while _reads(lab) and time.monotonic() - gone < 5:  # it leaves: 503 meanwhile
+        time.sleep(0.05)
+    assert httpx.get(f"{lab.http}/things").status_code == 200  # the adapter serves on
+    deadline = time.monotonic() + 30
+    while not _reads(lab):
+        assert time.monotonic() < deadline, lab.log.read_text()[-3000:]
+        time.sleep(0.1)
+    print(f"\nlights back {time.monotonic() - gone:.2f} s after SIGKILL")
+    assert _lights_process(lab).pid != victim.pid and lab.proc.poll() is None
+    still = {p.pid for p in psutil.Process(lab.proc.pid).children(recursive=True)}
+    assert (others - {victim.pid}) <= still, "only the killed process was replaced"
+    assert "process lights exited (code -9); starting it again" in lab.log.read_text()
+
+
+def test_a_process_that_keeps_crashing_stops_the_lab_with_the_reason(lab):
+    victim = _lights_process(lab)
+    kills = 0
+    while victim is not None:
+        os.kill(victim.pid, signal.SIGKILL)
+        kills += 1
+        victim = _lights_process(lab, not_pid=victim.pid)  # started again, or the lab gave up
+    lab.proc.wait(timeout=30)
+    assert kills == 5 and lab.proc.returncode != 0
+    assert "its 5th crash within 60 s; stopping the lab" in lab.log.read_text()
