@@ -77,3 +77,18 @@ def test_a_process_that_keeps_crashing_stops_the_lab_with_the_reason(lab):
     lab.proc.wait(timeout=30)
     assert kills == 5 and lab.proc.returncode != 0
     assert "its 5th crash within 60 s; stopping the lab" in lab.log.read_text()
+
+
+def test_a_killed_router_is_started_again_and_one_shot_commands_find_the_lab(lab):
+    router = next(c for c in psutil.Process(lab.proc.pid).children() if "twinmesh: router" in " ".join(c.cmdline()))
+    os.kill(router.pid, signal.SIGKILL)
+    deadline = time.monotonic() + 30
+    while True:  # a one-shot command connects to the router's endpoint: it answers once the router is back
+        done = lab.cli("read", "light-left", "lightState", timeout=20)
+        if done.returncode == 0:
+            break
+        assert time.monotonic() < deadline, done.stderr
+        time.sleep(0.2)
+    assert httpx.put(f"{lab.http}/light-left/properties/lightState", json=True).status_code == 204
+    assert lab.cli("read", "light-left", "lightState").stdout.strip() == "true"
+    assert "process router exited (code -9); starting it again" in lab.log.read_text()
