@@ -242,7 +242,7 @@ class Registry:
 
     def _set_td(self, entry: ThingEntry, payload: bytes) -> None:
         known = entry.td is not None and entry.source is not None
-        unchanged = known and entry.source == _json_or_none(payload)
+        previous = entry.source
         try:
             entry.td, entry.td_error = with_types(decode_td(payload)), None
             entry.source = msgspec.json.decode(payload)
@@ -251,7 +251,7 @@ class Registry:
             log.warning(entry.td_error)
         entry.values.clear()
         entry.rendered.clear()
-        if entry.td_error is None and not unchanged:
+        if entry.td_error is None and not (known and entry.source == previous):
             self._directory_event("thing_updated" if known else "thing_created", entry)
 
     def _directory_event(self, kind: str, entry: ThingEntry) -> None:
@@ -355,13 +355,6 @@ class Registry:
         """A feed of the named properties' changes or events, registered on entry (call after `td()`)."""
         self._entry(thing)
         return self.observers.watch(thing, kind, names)
-
-
-def _json_or_none(payload: bytes) -> Any:
-    try:
-        return msgspec.json.decode(payload)
-    except msgspec.DecodeError:
-        return None
 
 
 def _resolve(future: asyncio.Future[None] | None) -> None:

@@ -110,7 +110,7 @@ def generate(robot: Robot | str | Path, scene: Scene | str | Path | None = None,
     SceneError, CalibrationError or WorkspaceError with a message for people, ValueError for a
     base URL that names no Thing.
     """
-    thing = _thing_name(base_url, name, robot if isinstance(robot, Robot) else None)
+    thing = _thing_name(base_url, name)
     started = time.perf_counter()
     robot, scene = _robot(robot, ee), _scene(scene, mount, surface)
     thing = thing or slug(robot.name)
@@ -210,7 +210,7 @@ def collision_warnings(robot: Robot, scene: Scene, samples: Samples) -> list[str
     return out
 
 
-def _thing_name(base_url: str | None, name: str | None, robot: Robot | None) -> str | None:
+def _thing_name(base_url: str | None, name: str | None) -> str | None:
     """The Thing's name: the base URL's last segment, else `name`; checked before any work is done."""
     if base_url:
         url = urlsplit(base_url)
