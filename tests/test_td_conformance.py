@@ -34,6 +34,11 @@ PENDING = 0.4                    # s a long-poll must stay open without a change
 REGISTERED_RELATIONS = {"self", "describedby", "next", "item", "alternate", "type", "collection", "icon"}
 NOT_QUANTITIES = re.compile(r"/version$|/data/properties/version$|/properties/version$")  # counters, not amounts
 TEMPLATE = re.compile(r"\{\?[^}]*\}")
+ACTION_STATUS = {  # the WoT Profile's ActionStatus, as twinmesh answers it
+    "type": "object", "required": ["id", "action", "status", "timeRequested", "href"],
+    "properties": {"status": {"enum": ["pending", "running", "completed", "failed", "cancelled"]},
+                   "id": {"type": "string", "pattern": "^[0-9a-f]{32}$"}, "href": {"type": "string"},
+                   "error": {"type": "object", "required": ["type", "title", "status"]}}}
 
 
 @pytest.fixture(scope="module")
@@ -202,6 +207,7 @@ class Walk:
 
     def action(self, name: str, a: dict) -> None:
         where = f"actions/{name}"
+        status_forms = {op: f for f in a["forms"] for op in ops(f) if op in ("queryaction", "cancelaction")}
         for form in a["forms"]:
             if "invokeaction" not in ops(form):
                 continue
@@ -210,13 +216,41 @@ class Walk:
             r = self.http.request(method, href(form, self.td, self.ids),
                                   **({"json": body} if "input" in a else {}))
             self.performed += 1
-            if 200 <= r.status_code < 300:
+            if form.get("response", {}).get("htv:statusCodeValue") == 201:  # the asynchronous form
+                self.asynchronous(where, r, a, status_forms)
+            elif 200 <= r.status_code < 300:
                 if a.get("output") is not None and r.content:
                     self.json_of(where, r, a["output"])
             else:
                 self.check_error(where, r, REFUSALS)
             if method == "POST":
                 self.refused_with_allow(where, "GET", href(form, self.td, self.ids))
+
+    def asynchronous(self, where: str, r: httpx.Response, a: dict, status_forms: dict[str, dict]) -> None:
+        """201 + Location of a status that the queryaction form reads until it ends (its output fitting the
+        output schema), after which the cancelaction form answers 409: nothing is left to cancel."""
+        if r.status_code != 201:
+            return self.check_error(where, r, REFUSALS)
+        status = self.json_of(where, r, ACTION_STATUS) or {}
+        if set(status_forms) != {"queryaction", "cancelaction"}:
+            return self.wrong(where, f"an asynchronous invokeaction form without query and cancel forms: {status_forms}")
+        query = status_forms["queryaction"]["href"].replace("{id}", status.get("id", ""))
+        if r.headers.get("location") != query:
+            self.wrong(where, f"Location {r.headers.get('location')!r}, the queryaction form gives {query!r}")
+        for _ in range(600):
+            status = self.json_of(where, self.http.get(query), ACTION_STATUS) or {}
+            if status.get("status") not in ("pending", "running"):
+                break
+            __import__("time").sleep(0.05)
+        self.performed += 1
+        if status.get("status") == "completed" and a.get("output") is not None and "output" in status:
+            if (why := fits(status["output"], a["output"])) is not None:
+                self.wrong(where, f"the completed status's output breaks the output schema ({why})")
+        elif status.get("status") == "failed" and status.get("error", {}).get("status") not in REFUSALS:
+            self.wrong(where, f"failed with {status.get('error')}")
+        r = self.http.request(status_forms["cancelaction"].get("htv:methodName", "DELETE"), query)
+        self.performed += 1
+        self.check_error(where, r, {409})
 
     def event(self, name: str, e: dict) -> None:
         where = f"events/{name}"

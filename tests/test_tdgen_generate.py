@@ -55,7 +55,10 @@ def test_td_has_the_affordances_forms_and_links_the_adapter_serves(generated):
                          (f"{url}/properties/{name}/sse", "sse"): ["observeproperty", "unobserveproperty"]}
     for name, action in td["actions"].items():
         assert action["synchronous"] is True
-        assert [f["href"] for f in action["forms"]] == [f"{url}/actions/{name}"]
+        at = f"{url}/actions/{name}"  # synchronous first, then asynchronous with its status resource
+        assert [(f["op"], f["href"]) for f in action["forms"]] == [
+            ("invokeaction", at), ("invokeaction", f"{at}?async=true"), ("queryaction", f"{at}/{{id}}"),
+            ("cancelaction", f"{at}/{{id}}")]
     for name in ("moveToJointPosition", "moveToCartesianPosition"):
         action = td["actions"][name]
         assert action["input"]["required"] == list(action["input"]["properties"])

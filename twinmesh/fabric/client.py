@@ -6,6 +6,7 @@ mesh and 504 when it is alive but did not answer in time.
 """
 from __future__ import annotations
 
+import re
 import time
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -14,6 +15,7 @@ import msgspec
 
 from twinmesh.fabric.keys import Keys
 from twinmesh.fabric.settings import MeshSettings
+from twinmesh.wot.invocation import ID, ActionStatus
 from twinmesh.wot.payload import JSON_ERRORS
 from twinmesh.wot.problem import BadGateway, NotFound, Problem, TimedOut, Unavailable
 from twinmesh.wot.td import AffordanceKind, ThingDescription, decode_td
@@ -53,18 +55,20 @@ class MeshClient:
 
     # --- raw requests ------------------------------------------------------------------
     def request(self, key: str, payload: bytes | None = None, timeout: float | None = None,
-                thing: str | None = None, what: tuple[AffordanceKind, str] | None = None) -> Reply:
+                thing: str | None = None, what: tuple[AffordanceKind, str] | None = None,
+                parameters: str = "") -> Reply:
         """One query, one reply; Problems for errors, silence and timeouts.
 
         `what` (kind, name) is the affordance the key stands for: when a live Thing does not answer
         at once, its TD tells whether it has that affordance at all (404 listing what it has).
+        `parameters` go into the selector (`key?parameters`).
         """
         timeout = self.settings.query_timeout if timeout is None else timeout
         started = time.monotonic()
         kwargs: dict[str, Any] = {"timeout": timeout}
         if payload is not None:
             kwargs["payload"] = payload
-        for r in self.session.get(key, **kwargs):
+        for r in self.session.get(f"{key}?{parameters}" if parameters else key, **kwargs):
             if r.ok is not None:
                 return Reply(r.ok.payload.to_bytes(), str(r.ok.encoding))
             err = r.err.payload.to_bytes()
@@ -113,6 +117,48 @@ class MeshClient:
         timeout = self.settings.action_timeout if timeout is None else timeout
         return _json(self.request(self.keys.action(thing, action), payload, timeout, thing=thing,
                                   what=("actions", action)).payload)
+
+    # --- asynchronous actions (twinmesh.fabric.server's selectors) ---------------------------------------
+    def invoke_async(self, thing: str, action: str, input: Any = NOTHING) -> ActionStatus:
+        """Start the action; its status at once (`pending` or `running`); bad input is refused here."""
+        payload = None if input is NOTHING else msgspec.json.encode(input)
+        return self.decode_status(self.request(self.keys.action(thing, action), payload, thing=thing,
+                                         what=("actions", action), parameters="async").payload)
+
+    def query_action(self, thing: str, action: str, id: str) -> ActionStatus:
+        return self.decode_status(self._by_id(thing, action, id, ""))
+
+    def cancel_action(self, thing: str, action: str, id: str) -> ActionStatus:
+        """Ask the invocation to stop; its status once it has (or after 5 s): 409 if it had already ended."""
+        return self.decode_status(self._by_id(thing, action, id, ";cancel"))
+
+    def query_all_actions(self, thing: str, timeout: float | None = None) -> dict[str, list[ActionStatus]]:
+        """Every invocation the Thing keeps, by action (actions with none left out)."""
+        out: dict[str, list[ActionStatus]] = {}
+        replied = False
+        key = f"{self.keys.action(thing, '*')}?calls"
+        for r in self.session.get(key, timeout=self.settings.query_timeout if timeout is None else timeout):
+            if r.ok is None:
+                continue
+            replied = True
+            for status in msgspec.json.decode(r.ok.payload.to_bytes(), type=list[ActionStatus]):
+                out.setdefault(status.action, []).append(status)
+        if not replied and not self.is_alive(thing):
+            raise Unavailable(f"{thing} is not on the mesh", reason="not-on-mesh")
+        return out
+
+    def _by_id(self, thing: str, action: str, id: str, extra: str) -> bytes:
+        if not re.fullmatch(ID, id):  # never a ';' or wildcard into the selector
+            raise NotFound(f"no invocation {id!r} (ids are 32 hex digits)")
+        return self.request(self.keys.action(thing, action), thing=thing, what=("actions", action),
+                            parameters=f"id={id}{extra}").payload
+
+    @staticmethod
+    def decode_status(payload: bytes) -> ActionStatus:
+        try:
+            return msgspec.json.decode(payload, type=ActionStatus)
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            raise BadGateway(f"a peer replied with no action status: {payload[:100]!r}") from None
 
     def file(self, thing: str, name: str) -> Reply:
         return self.request(self.keys.file(thing, name), thing=thing)

@@ -5,10 +5,24 @@ Given a TD and handlers, `ExposedThing` declares the TD queryable, a queryable p
 changes and events, and last the liveliness token, so that a Thing is never seen alive before it
 can answer. Zenoh callbacks only hand queries to a worker pool: handlers may block (a motion
 returns when it is over) without stalling the session.
+
+An action's queryable also serves its asynchronous invocations (`twinmesh.wot.invocation`), told
+apart by the selector's parameters:
+
+| selector | what | reply |
+|---|---|---|
+| `<prefix>/<thing>/actions/<a>` (payload = input) | invoke, answer when done | the output |
+| `...actions/<a>?async` (payload = input) | invoke, answer at once | its ActionStatus |
+| `...actions/<a>?id=<id>` | query one invocation | its ActionStatus |
+| `...actions/<a>?id=<id>;cancel` | cancel it (waits up to 5 s for it to stop) | its ActionStatus |
+| `...actions/<a>?calls` (or `actions/*?calls`) | query all | a list of ActionStatus |
+
+Invoking and cancelling act, so they need the exact key; querying is a read, wildcards may.
 """
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -17,6 +31,7 @@ from typing import Any, Callable
 import msgspec
 
 from twinmesh.fabric.keys import NAME, Keys, check_name, check_slug
+from twinmesh.wot.invocation import ID, Invocations
 from twinmesh.wot.payload import decode_json
 from twinmesh.wot.problem import BadInput, NotAllowed, NotFound, Problem
 from twinmesh.wot.td import ThingDescription, decode_td, keep_terms, zenoh_forms
@@ -63,6 +78,8 @@ class ExposedThing:
         self._values: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=f"thing-{name}")
+        self._runner = ThreadPoolExecutor(max_workers=4, thread_name_prefix=f"async-{name}")
+        self.invocations = Invocations(self._runner)
         self._declared: list[Any] = []
         self._publishers: dict[str, Any] = {}
         self._td_json = b""
@@ -170,7 +187,7 @@ class ExposedThing:
         for p in self.td.properties:
             serve(k.property(self.name, p), self._answer_property, p, acts="with-payload")
         for a in self.td.actions:
-            serve(k.action(self.name, a), self._answer_action, a, acts="always")
+            serve(k.action(self.name, a), self._answer_action, a, acts="action")
         for f in self._files:
             serve(k.file(self.name, f), self._answer_file, f)
         if self._file_lookup is not None:
@@ -194,6 +211,8 @@ class ExposedThing:
                 pass
         self._publishers.clear()
         self._pool.shutdown(wait=False, cancel_futures=True)
+        self.invocations.cancel_all()
+        self._runner.shutdown(wait=False, cancel_futures=True)
 
     def __enter__(self) -> "ExposedThing":
         return self.expose()
@@ -204,7 +223,8 @@ class ExposedThing:
     # --- query handling (worker threads) ----------------------------------------------------
     def _dispatch(self, key: str, acts: str, answer: Callable[..., Any], *args: Any):
         """A queryable's callback for the concrete `key`; `acts` says when a query changes something
-        ("with-payload": writes, "always": actions), which only a query on exactly `key` may do."""
+        ("with-payload": writes; "action": all but status queries), which only a query on exactly
+        `key` may do."""
         def callback(query) -> None:  # runs on a Zenoh thread: never block here
             self._pool.submit(self._serve, query, key, acts, answer, args)
         return callback
@@ -223,10 +243,12 @@ class ExposedThing:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else None
             asked = str(query.key_expr)
-            if asked != key and (acts == "always" or (acts == "with-payload" and payload is not None)):
+            params = dict(query.parameters) if acts == "action" else {}
+            reads = acts == "action" and ("calls" in params or "id" in params and "cancel" not in params)
+            if asked != key and (acts == "action" and not reads or acts == "with-payload" and payload is not None):
                 raise BadInput(f"{key}: writes and actions run only for a query on their exact key, not on "
                                f"{asked}")
-            out = answer(payload, *args)
+            out = answer(payload, *args, params) if acts == "action" else answer(payload, *args)
             out, encoding = out if isinstance(out, tuple) else (out, JSON_ENCODING)
             query.reply(key, out if out is not None else b"", encoding=encoding)  # the concrete key answers
         except Problem as p:
@@ -253,7 +275,23 @@ class ExposedThing:
         self._writes[prop](value)
         return None
 
-    def _answer_action(self, payload: bytes | None, action: str) -> bytes | None:
+    def _answer_action(self, payload: bytes | None, action: str, params: dict[str, str]) -> bytes | None:
+        if "calls" in params:
+            return msgspec.json.encode(self.invocations.all(action))
+        if "id" in params:
+            id = params["id"]
+            if not re.fullmatch(ID, id) or self.invocations.get(id).action != action:
+                raise NotFound(f"{action!r} of {self.name} has no invocation {id!r}")
+            status = self.invocations.cancel(id) if "cancel" in params else self.invocations.get(id)
+            return msgspec.json.encode(status)
+        value = self._checked_input(action, payload)
+        if "async" in params:
+            return msgspec.json.encode(self.invocations.start(action, lambda: self._perform(action, value)))
+        out = self._perform(action, value)
+        return None if out is None else msgspec.json.encode(out)
+
+    def _checked_input(self, action: str, payload: bytes | None) -> Any:
+        """The action's input from the payload, valid by the TD (BadInput otherwise)."""
         aff = self.td.actions[action]
         value = None
         if aff.input is None and payload is not None and payload.strip() not in (b"", b"null"):
@@ -263,6 +301,10 @@ class ExposedThing:
                 raise BadInput(f"action {action!r} needs an input")
             value = decode_json(payload, f"the input of {action!r}")
             validate(value, aff.input, path="input")
+        return value
+
+    def _perform(self, action: str, value: Any) -> Any:
+        """Run the handler; the call goes out on the action's key (for recorders) either way."""
         started = time.monotonic()
         try:
             out = self._actions[action](value)
@@ -271,7 +313,7 @@ class ExposedThing:
                                                   seconds=time.monotonic() - started))
             raise
         self._publish_call(action, ActionCall(input=value, output=out, seconds=time.monotonic() - started))
-        return None if out is None else msgspec.json.encode(out)
+        return out
 
     def _publish_call(self, action: str, call: "ActionCall") -> None:
         """Tell observers of the mesh (the recorder) that an action ran: a put on the action's key."""

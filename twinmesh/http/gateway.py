@@ -35,6 +35,7 @@ from twinmesh.fabric.settings import MeshSettings
 from twinmesh.http.observers import Change, Feed, Observers
 from twinmesh.http.problems import unavailable
 from twinmesh.http.tdrewrite import served_id, with_types
+from twinmesh.wot.invocation import ActionStatus
 from twinmesh.wot.payload import JSON_ERRORS, decode_json
 from twinmesh.wot.problem import BadGateway, BadInput, NotFound, Problem, Unavailable
 from twinmesh.wot.td import ThingDescription, decode_td
@@ -330,12 +331,31 @@ class Registry:
     async def invoke(self, thing: str, action: str, payload: bytes | None) -> bytes:
         return await self._mutate(thing, self.keys.action(thing, action), payload, self.settings.action_timeout)
 
-    async def _mutate(self, thing: str, key: str, payload: bytes | None, timeout: float) -> bytes:
+    async def invoke_async(self, thing: str, action: str, payload: bytes | None) -> ActionStatus:
+        """Start the action on the Thing; its status (the Thing checked the input, as for `invoke`)."""
+        reply = await self._mutate(thing, self.keys.action(thing, action), payload, self.settings.query_timeout,
+                                   parameters="async")
+        return self.client.decode_status(reply)
+
+    async def query_action(self, thing: str, action: str, id: str) -> ActionStatus:
+        self._entry(thing)
+        return await self.call(self.client.query_action, thing, action, id)
+
+    async def cancel_action(self, thing: str, action: str, id: str) -> ActionStatus:
+        self._entry(thing)
+        return await self.call(self.client.cancel_action, thing, action, id)
+
+    async def query_all_actions(self, thing: str) -> dict[str, list[ActionStatus]]:
+        self._entry(thing)
+        return await self.call(self.client.query_all_actions, thing)
+
+    async def _mutate(self, thing: str, key: str, payload: bytes | None, timeout: float,
+                      parameters: str = "") -> bytes:
         entry = self._entry(thing)
         started = time.monotonic()
         entry.epoch += 1
         try:
-            reply: Reply = await self.call(self.client.request, key, payload, timeout, thing)
+            reply: Reply = await self.call(self.client.request, key, payload, timeout, thing, None, parameters)
         finally:
             entry.epoch += 1
             entry.values = {k: v for k, v in entry.values.items() if v.at >= started}

@@ -6,12 +6,13 @@ HTTP view of it, so it never drifts from what the device serves. Form layout, pe
 - property: `[read/write]` on `/{thing}/properties/{p}`, then (observable) long-poll on
   `.../{p}/observable` and SSE on `.../{p}/sse`, long-poll first because node-wot takes the first
   form whose `op` matches and its SSE client cannot send credentials (see `auth.py`);
-- action: `invokeaction` POST on `/{thing}/actions/{a}`;
+- action: `invokeaction` POST on `/{thing}/actions/{a}` (synchronous), then POST on `...?async=true`
+  (201 + `Location` of `/{thing}/actions/{a}/{id}`), `queryaction` GET and `cancelaction` DELETE there;
 - event: long-poll on `/{thing}/events/{e}`, then SSE on `.../{e}/sse`;
 - Thing level: `readallproperties`/`readmultipleproperties` (`?names=a,b`) GET and, with a writable
   property, `writeallproperties`/`writemultipleproperties` PUT on `/{thing}/properties`; the W3C-profile style
   `observeallproperties` / `subscribeallevents` SSE streams (named events) on `/{thing}/properties`
-  and `/{thing}/events` (asked for with `Accept: text/event-stream`).
+  and `/{thing}/events` (asked for with `Accept: text/event-stream`); `queryallactions` GET on `/{thing}/actions`.
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ import msgspec
 
 from twinmesh.wot import units
 from twinmesh.wot.td import (
+    INVOCATION_ID,
     JSON,
     TD_CONTEXT,
     ActionAffordance,
@@ -63,6 +65,8 @@ def http_td(td: ThingDescription, thing: str, base: str, security: Security = NO
     if any(p.observable for p in td.properties.values()):
         forms.append(Form(href=f"{url}/properties", op=["observeallproperties", "unobserveallproperties"],
                           subprotocol="sse", contentType=JSON))
+    if actions:
+        forms.append(Form(href=f"{url}/actions", op="queryallactions", method="GET", contentType=JSON))
     if events:
         forms.append(Form(href=f"{url}/events", op=["subscribeallevents", "unsubscribeallevents"],
                           subprotocol="sse", contentType=JSON))
@@ -90,11 +94,18 @@ def _property(p: PropertyAffordance, href: str) -> PropertyAffordance:
 
 
 def _action(a: ActionAffordance, href: str) -> ActionAffordance:
-    # through the adapter every action is synchronous, whatever the device says: the POST answers
-    # when the action is over (the mesh has no queryaction/cancelaction to offer instead)
+    """Synchronous first (node-wot takes the first `invokeaction` form: the POST answers when the action
+    is over, hence `synchronous: true` as SPEC §5 says), then the opt-in asynchronous one (201 +
+    Location of a status resource) and that resource's query and cancel."""
+    status = f"{href}/{{id}}"
     return msgspec.structs.replace(
-        a, synchronous=True,
-        forms=[Form(href=href, op="invokeaction", contentType=JSON)])
+        a, synchronous=True, uriVariables={**(a.uriVariables or {}), "id": INVOCATION_ID},
+        forms=[Form(href=href, op="invokeaction", contentType=JSON),
+               Form(href=f"{href}?async=true", op="invokeaction", contentType=JSON,
+                    response={"contentType": JSON, "htv:statusCodeValue": 201,
+                              "description": "The invocation's status (WoT Profile ActionStatus); Location names it"}),
+               Form(href=status, op="queryaction", method="GET", contentType=JSON),
+               Form(href=status, op="cancelaction", method="DELETE")])
 
 
 def _event(e: EventAffordance, href: str) -> EventAffordance:

@@ -53,6 +53,7 @@ from twinmesh.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM, Workspa
 from twinmesh.sim.compensation import KinematicArm
 from twinmesh.sim.vec import Vec
 from twinmesh.sim.world import PEAK_SPEED, PathMotion, Snapshot, World
+from twinmesh.wot.invocation import ActionCancelled
 from twinmesh.wot.problem import BadInput, Problem, Refused, Unavailable
 
 IK_SEEDS = 24       # IK runs per Cartesian target: from the current configuration and from random starts
@@ -618,6 +619,9 @@ class RobotTwin:
         self._motion = motion
         try:
             self.world.play(motion).result()
+        except ActionCancelled:  # an asynchronous move cancelled: say where it stopped
+            raise ActionCancelled(f"{self.name}: the move was cancelled; it stopped at {self._user(self.arm.q)} "
+                                  f"({', '.join(self._main)})", extra={"joints": self.joint_position()}) from None
         finally:
             self._motion = None
         if motion.stopped:

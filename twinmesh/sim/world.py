@@ -14,6 +14,7 @@ notifier thread, in order, so a slow subscriber never stalls the physics.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import queue
 import threading
@@ -27,6 +28,7 @@ import pybullet as pb
 
 from twinmesh.fabric.settings import MAX_SPEED, MIN_SPEED
 from twinmesh.sim.vec import Vec
+from twinmesh.wot.invocation import ActionCancelled, current_cancellation
 from twinmesh.wot.problem import Unavailable
 
 log = logging.getLogger(__name__)
@@ -269,13 +271,20 @@ class World:
         return self.submit(fn).result(timeout)
 
     def play(self, motion: Motion) -> Future:
-        """Start a motion; the future completes when it is over (in simulated time)."""
+        """Start a motion; the future completes when it is over (in simulated time).
+
+        Played for an asynchronous invocation (`twinmesh.wot.invocation`), the motion stops where it
+        is when the invocation is cancelled: its future fails with ActionCancelled."""
         fut: Future = Future()
 
         def add() -> None:
             if fut.set_running_or_notify_cancel():  # from now on the caller cannot cancel it
                 self._motions.append((motion, fut))
 
+        token = current_cancellation()
+        if token is not None:
+            forget = token.on_cancel(functools.partial(self._cancel_soon, motion, fut))
+            fut.add_done_callback(lambda _: forget())
         started = self.submit(add)
         if started.done() and started.exception() is not None:
             fut.set_exception(started.exception())
@@ -287,6 +296,14 @@ class World:
     def wait(self, seconds: float) -> None:
         """Block until `seconds` of simulated time have passed."""
         self.play(Delay(seconds)).result()
+
+    def _cancel_soon(self, motion: Motion, fut: Future) -> None:  # the cancelling thread: never block
+        self.submit(lambda: self._cancel(motion, fut))
+
+    def _cancel(self, motion: Motion, fut: Future) -> None:  # stepping thread
+        self._motions = [(m, f) for m, f in self._motions if f is not fut]
+        if not fut.done():
+            fut.set_exception(ActionCancelled("the action was cancelled; the motion stopped where it was"))
 
     def cancel_motions(self, reason: str = "the scene was reset") -> None:
         """Fail every running motion with MotionCancelled (their callers get the error)."""

@@ -81,6 +81,12 @@ class NotAllowed(Problem):
     status, slug, title = 405, "method-not-allowed", "Operation not allowed"
 
 
+class Conflict(Problem):
+    """The request is fine but the resource's state does not allow it (an action that has already ended)."""
+
+    status, slug, title = 409, "conflict", "Conflict with the current state"
+
+
 class Refused(Problem):
     """The input is well-formed but the device cannot do it (unreachable, empty warehouse...)."""
 
@@ -100,5 +106,5 @@ class BadGateway(Problem):
 
 
 _BY_STATUS: dict[int, type[Problem]] = {
-    c.status: c for c in (BadInput, Unauthorized, NotFound, NotAllowed, Refused, Unavailable, TimedOut, BadGateway)
+    c.status: c for c in (BadInput, Unauthorized, NotFound, NotAllowed, Conflict, Refused, Unavailable, TimedOut, BadGateway)
 }

@@ -191,6 +191,11 @@ def property_ops(p: PropertyAffordance) -> list[str]:
     return ops
 
 
+INVOCATION_ID = DataSchema(
+    type="string", pattern="^[0-9a-f]{32}$",
+    description="An asynchronous invocation's id, from its status (the second invokeaction form answers with it)")
+
+
 def zenoh_forms(td: ThingDescription, prefix: str, thing: str) -> ThingDescription:
     """The TD as served on Zenoh: every form's href is the affordance's key expression."""
     def href(kind: str, name: str) -> str:
@@ -202,7 +207,11 @@ def zenoh_forms(td: ThingDescription, prefix: str, thing: str) -> ThingDescripti
                                             contentType=JSON)] if p.observable else []))
         for n, p in td.properties.items()
     }
-    actions = {n: msgspec.structs.replace(a, forms=[Form(href=href("actions", n), op="invokeaction", contentType=JSON)])
+    actions = {n: msgspec.structs.replace(a, uriVariables={**(a.uriVariables or {}), "id": INVOCATION_ID}, forms=[
+        Form(href=href("actions", n), op="invokeaction", contentType=JSON),
+        Form(href=href("actions", n) + "?async", op="invokeaction", contentType=JSON),
+        Form(href=href("actions", n) + "?id={id}", op="queryaction", contentType=JSON),
+        Form(href=href("actions", n) + "?id={id};cancel", op="cancelaction", contentType=JSON)])
                for n, a in td.actions.items()}
     events = {n: msgspec.structs.replace(e, forms=[Form(href=href("events", n),
                                                          op=["subscribeevent", "unsubscribeevent"], contentType=JSON)])

@@ -1,0 +1,193 @@
+"""Asynchronous actions (WoT TD 1.1 queryaction / cancelaction / queryallactions, WoT Profile status
+objects) on a real lab: a UR10 at a quarter of real time, so that a move lasts long enough to be
+queried while it runs and cancelled half-way, over HTTP and over Zenoh.
+"""
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+
+import httpx
+import pytest
+from labs import start_robot_lab
+
+from twinmesh.wot.invocation import Invocations
+from twinmesh.wot.problem import BadInput, Conflict, NotFound
+
+PROBLEM = "application/problem+json"
+JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
+
+
+@contextmanager
+def mesh_client(endpoint: str):
+    from twinmesh.fabric.client import MeshClient
+    from twinmesh.fabric.session import open_session
+    from twinmesh.fabric.settings import MeshSettings
+
+    settings = MeshSettings(mode="client", connect=(endpoint,))
+    with open_session(settings) as session:
+        yield MeshClient(session, settings)
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    lab = start_robot_lab(tmp_path_factory.mktemp("async"))
+    lab.spawn("robot", "ur10.urdf", "--name", "ur10", "--samples", "3000", "--speed", "0.25",
+              log=lab.tmp / "ur10.log")
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:  # the generated TD (Cartesian bounds) is not needed: joint moves
+        if httpx.get(f"{lab.http}/ur10", timeout=5).status_code == 200:
+            break
+        time.sleep(0.1)
+    else:
+        raise AssertionError((lab.tmp / "ur10.log").read_text()[-3000:])
+    yield lab
+    assert lab.stop(), "the lab did not stop cleanly"
+
+
+@pytest.fixture
+def http(lab):
+    with httpx.Client(base_url=lab.http, timeout=60) as h:
+        yield h
+
+
+def goal(pan: float) -> dict[str, float]:
+    """Upright, turned to `pan` degrees: a move between two such goals is a turn of the base alone."""
+    return {"shoulder_pan_joint": pan, "shoulder_lift_joint": -90.0, "elbow_joint": 0.0, "wrist_1_joint": -90.0,
+            "wrist_2_joint": 0.0, "wrist_3_joint": 0.0}
+
+
+def joints(http) -> dict[str, float]:
+    return http.get("/ur10/properties/getJointposition").json()
+
+
+def until_ended(http, location: str, timeout: float = 120.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        status = http.get(location).json()
+        if status["status"] not in ("pending", "running"):
+            return status
+        time.sleep(0.1)
+    raise AssertionError(f"{location} still {status} after {timeout} s")
+
+
+def at(http, pan: float) -> None:
+    r = http.post("/ur10/actions/moveToJointPosition", json=goal(pan))  # synchronous: node-wot's first form
+    assert r.status_code == 200, r.text
+
+
+def test_the_td_offers_sync_invocation_first_then_async_query_and_cancel(http):
+    td = http.get("/ur10").json()
+    forms = td["actions"]["moveToJointPosition"]["forms"]
+    assert [f["op"] for f in forms] == ["invokeaction", "invokeaction", "queryaction", "cancelaction"]
+    assert forms[0]["href"].endswith("/ur10/actions/moveToJointPosition")  # what node-wot 0.9.2 takes
+    assert forms[1]["href"].endswith("?async=true") and forms[1]["response"]["htv:statusCodeValue"] == 201
+    assert forms[3]["htv:methodName"] == "DELETE" and forms[2]["href"] == forms[3]["href"]
+    assert "{id}" in forms[2]["href"] and "id" in td["actions"]["moveToJointPosition"]["uriVariables"]
+    assert {"op": "queryallactions", "href": str(http.base_url).rstrip("/") + "/ur10/actions",
+            "contentType": "application/json", "htv:methodName": "GET"} in td["forms"]
+
+
+def test_an_async_move_answers_201_is_running_when_queried_and_completed_after(http):
+    at(http, 0)
+    r = http.post("/ur10/actions/moveToJointPosition?async=true", json=goal(60))
+    assert r.status_code == 201, r.text
+    status = r.json()
+    location = r.headers["location"]
+    assert status["href"] == location and location.endswith(f"/ur10/actions/moveToJointPosition/{status['id']}")
+    assert status["status"] in ("pending", "running") and status["timeRequested"].endswith("Z")
+    time.sleep(0.5)
+    running = http.get(location).json()
+    assert running["status"] == "running" and "timeStarted" in running
+    assert 0 < joints(http)["shoulder_pan_joint"] < 60  # on its way
+    done = until_ended(http, location)
+    assert done["status"] == "completed", done
+    out = done["output"]  # the answer a synchronous move gives
+    assert out["path"]["joints"] == list(JOINTS) and out["path"]["points"][-1][0] == pytest.approx(60, abs=1e-6)
+    assert done["timeEnded"] >= done["timeStarted"] >= done["timeRequested"]
+    assert joints(http) == pytest.approx(goal(60), abs=1e-6)
+    listed = http.get("/ur10/actions").json()
+    assert status["id"] in [s["id"] for s in listed["moveToJointPosition"]]
+    assert all(s["href"].endswith(s["id"]) for s in listed["moveToJointPosition"])
+
+
+def test_a_cancelled_move_stops_short_of_the_target_and_says_cancelled(http):
+    at(http, 0)
+    r = http.post("/ur10/actions/moveToJointPosition", json=goal(120), headers={"Prefer": "respond-async"})
+    assert r.status_code == 201 and r.headers["preference-applied"] == "respond-async", r.text
+    location = r.headers["location"]
+    deadline = time.monotonic() + 30
+    while joints(http)["shoulder_pan_joint"] < 20 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    cancelled = http.delete(location)
+    assert cancelled.status_code == 204, cancelled.text
+    status = http.get(location).json()
+    assert status["status"] == "cancelled" and status["error"]["status"] == 409, status
+    stopped = status["error"]["extra"]["joints"]["shoulder_pan_joint"]
+    assert 20 <= stopped < 110, status  # short of the target
+    time.sleep(0.5)
+    assert joints(http)["shoulder_pan_joint"] == pytest.approx(stopped, abs=1e-6)  # and it stays there
+    again = http.delete(location)
+    assert again.status_code == 409 and again.headers["content-type"].startswith(PROBLEM)
+    assert again.json()["reason"] == "already-ended"
+    at(http, 0)  # it serves on: a new move from where it stopped
+
+
+def test_an_async_invoke_with_bad_input_is_refused_up_front_and_nothing_starts(http):
+    at(http, 0)
+    before = http.get("/ur10/actions").json().get("moveToJointPosition", [])
+    for body in ({"shoulder_pan_joint": 10}, {**goal(10), "shoulder_pan_joint": 9999}, "up"):
+        r = http.post("/ur10/actions/moveToJointPosition?async=true", json=body)
+        assert r.status_code == 400 and r.headers["content-type"].startswith(PROBLEM), r.text
+        assert "location" not in r.headers and "input" in r.json()["detail"]
+    assert http.get("/ur10/actions").json().get("moveToJointPosition", []) == before
+    assert joints(http)["shoulder_pan_joint"] == pytest.approx(0, abs=1e-6)
+    assert http.post("/ur10/actions/moveToJointPosition?async=perhaps", json=goal(10)).status_code == 400
+
+
+def test_unknown_or_malformed_invocation_ids_are_404_and_never_reach_the_mesh(http):
+    for id in ("0" * 32, "*", "abc;cancel", "0123", "f" * 33, "F" * 32):
+        for method in ("GET", "DELETE"):
+            r = http.request(method, f"/ur10/actions/moveToJointPosition/{id}")
+            assert r.status_code == 404 and r.headers["content-type"].startswith(PROBLEM), (id, method, r.text)
+    assert http.get("/ur10/actions/noSuchAction/" + "0" * 32).status_code == 404
+
+
+def test_over_zenoh_a_move_is_started_queried_and_cancelled_and_wildcards_only_read(lab, http):
+    at(http, 0)
+    with mesh_client(lab.endpoint) as c:
+        started = c.invoke_async("ur10", "moveToJointPosition", goal(90))
+        assert started.status in ("pending", "running")
+        time.sleep(0.6)
+        assert c.query_action("ur10", "moveToJointPosition", started.id).status == "running"
+        # cancelling acts: a query on a wildcard key may read the calls but not cancel
+        replies = list(c.session.get(f"wot/*/actions/moveToJointPosition?id={started.id};cancel", timeout=5))
+        assert replies and all(r.ok is None for r in replies)
+        assert c.query_action("ur10", "moveToJointPosition", started.id).status == "running"
+        assert started.id in [s.id for s in c.query_all_actions("ur10")["moveToJointPosition"]]
+        ended = c.cancel_action("ur10", "moveToJointPosition", started.id)
+        assert ended.status == "cancelled" and ended.error is not None and ended.error["status"] == 409
+        with pytest.raises(Conflict):
+            c.cancel_action("ur10", "moveToJointPosition", started.id)
+        with pytest.raises(BadInput):
+            c.invoke_async("ur10", "moveToJointPosition", {"shoulder_pan_joint": 1})
+        with pytest.raises(NotFound):
+            c.query_action("ur10", "moveToJointPosition", "0" * 32)
+    assert joints(http)["shoulder_pan_joint"] < 85
+
+
+def test_finished_invocations_are_kept_for_a_bounded_time_and_count():
+    with ThreadPoolExecutor(2) as pool:
+        kept = Invocations(pool, keep=3, keep_for=0.5)
+        ids = [kept.start("blink", lambda i=i: i).id for i in range(5)]
+        deadline = time.monotonic() + 5
+        while any(s.status != "completed" for s in kept.all()) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert [s.output for s in kept.all()] == [2, 3, 4]  # the oldest two went first
+        with pytest.raises(NotFound):
+            kept.get(ids[0])
+        time.sleep(0.6)
+        assert kept.all() == []
+        with pytest.raises(NotFound):
+            kept.get(ids[4])
