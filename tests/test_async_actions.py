@@ -191,3 +191,27 @@ def test_finished_invocations_are_kept_for_a_bounded_time_and_count():
         assert kept.all() == []
         with pytest.raises(NotFound):
             kept.get(ids[4])
+
+
+@pytest.mark.parametrize("binding", ["http", "zenoh"])
+def test_consume_starts_queries_waits_for_and_cancels_async_moves(lab, http, binding):
+    import twinmesh
+
+    at(http, 0)
+    with mesh_client(lab.endpoint) as c:
+        ur10 = (twinmesh.consume(f"{lab.http}/ur10") if binding == "http"
+                else twinmesh.consume("ur10", session=c.session, settings=c.settings))
+        with ur10:
+            move = ur10.invoke_action_async("moveToJointPosition", goal(30))
+            assert move.query().status in ("pending", "running")
+            out = move.wait(timeout=60)
+            assert move.status.status == "completed" and out["path"]["points"][-1][0] == pytest.approx(30, abs=1e-6)
+            move = ur10.invoke_action_async("moveToJointPosition", goal(150))
+            time.sleep(0.8)
+            assert move.cancel().status == "cancelled"
+            with pytest.raises(Conflict):
+                move.wait()
+            assert 30 < ur10.read_property("getJointposition")["shoulder_pan_joint"] < 140
+            assert move.id in [s.id for s in ur10.query_all_actions()["moveToJointPosition"]]
+            with pytest.raises(BadInput):  # refused before it leaves
+                ur10.invoke_action_async("moveToJointPosition", {"shoulder_pan_joint": 1})

@@ -115,10 +115,12 @@ def test_a_failing_step_makes_the_workflow_exit_non_zero_naming_it(lab, fresh, v
 
 
 def test_the_workflow_function_reports_eight_timed_steps_and_the_colour(fresh):
-    from twinmesh.apps.cube_workflow import MeshConsumer, cube_workflow
+    import twinmesh
+    from twinmesh.apps.cube_workflow import cube_workflow
 
     heard = []
-    run = cube_workflow(MeshConsumer(fresh), heard.append, sensor_timeout=60)
+    with twinmesh.consumer(session=fresh.session, settings=fresh.settings) as things:
+        run = cube_workflow(things, heard.append, sensor_timeout=60)
     assert [s.number for s in run.steps] == list(range(1, 9)) and heard == run.steps
     assert all(s.seconds > 0 for s in run.steps) and run.seconds >= sum(s.seconds for s in run.steps)
     assert_color(run.color, "cube-red")

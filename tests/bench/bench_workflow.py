@@ -3,8 +3,8 @@
 Starts `twinmesh up iot-platform --speed max` (then `--speed 1`) on free ports and, for each:
 - idle: CPU (% of one core, user+system, summed over the supervisor and all its processes) and
   resident memory (RSS per process and summed; shared pages count once per process) over a few s;
-- the workflow over Zenoh (`twinmesh.apps.cube_workflow.cube_workflow` with a `MeshConsumer`; at speed max also
-  over the HTTP adapter with an `HttpConsumer`): wall time, simulated time (the world Thing's
+- the workflow over Zenoh (`twinmesh.apps.cube_workflow.cube_workflow`, a `twinmesh.consumer` on a session; at speed max also
+  over the HTTP adapter with a consumer given its base URL): wall time, simulated time (the world Thing's
   `simTime` before and after), and the lab's CPU and peak RSS meanwhile.
 
     python tests/bench/bench_workflow.py [--idle 5] [--runs-max 2] [--no-speed-1]
@@ -103,7 +103,7 @@ def one_run(lab, client, consumer, label: str) -> None:
 
 
 def bench(speed: str, runs: int, idle: float, http: bool, tmp: Path) -> None:
-    from twinmesh.apps.cube_workflow import HttpConsumer, MeshConsumer
+    import twinmesh
 
     print(f"twinmesh up iot-platform --speed {speed}")
     with lab_at(speed, tmp) as lab, mesh_client(lab.endpoint) as client:
@@ -113,13 +113,11 @@ def bench(speed: str, runs: int, idle: float, http: bool, tmp: Path) -> None:
             time.sleep(idle)
         meter.report("idle")
         for i in range(runs):
-            one_run(lab, client, MeshConsumer(client), f"over Zenoh #{i + 1}")
+            with twinmesh.consumer(session=client.session, settings=client.settings) as things:
+                one_run(lab, client, things, f"over Zenoh #{i + 1}")
         if http:
-            consumer = HttpConsumer(lab.http)
-            try:
-                one_run(lab, client, consumer, "over HTTP")
-            finally:
-                consumer.close()
+            with twinmesh.consumer(base=lab.http) as things:
+                one_run(lab, client, things, "over HTTP")
 
 
 def main() -> None:

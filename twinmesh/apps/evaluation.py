@@ -14,19 +14,15 @@ import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Protocol
+from typing import Iterable
 
 import click
 
-from twinmesh.fabric.client import NOTHING
+from twinmesh import Consumer
 from twinmesh.wot.problem import Problem
 
 MOVE, WHERE, JOINTS = "moveToCartesianPosition", "getCartesianposition", "getJointposition"
 
-
-class Consumer(Protocol):
-    def read(self, thing: str, prop: str) -> Any: ...
-    def invoke(self, thing: str, action: str, input: Any = NOTHING) -> Any: ...
 
 
 @dataclass
@@ -62,10 +58,11 @@ def read_targets(path: str | Path) -> list[tuple[float, float, float]]:
 def evaluate_ik(c: Consumer, thing: str, targets: Iterable[tuple[float, float, float]]) -> list[IkRow]:
     """One row per target, in order (pass a progress-reporting iterable to show progress)."""
     rows = []
+    robot = c.thing(thing)
     for target in targets:
         status, reason, detail = "reached", "", ""
         try:
-            c.invoke(thing, MOVE, dict(zip("xyz", target)))
+            robot.invoke_action(MOVE, dict(zip("xyz", target)))
         except Problem as p:
             if p.status >= 500 and p.status != 503:
                 raise
@@ -73,9 +70,9 @@ def evaluate_ik(c: Consumer, thing: str, targets: Iterable[tuple[float, float, f
         if status == "refused":  # nothing moved: the pose is the previous target's, not this one's
             rows.append(IkRow(target, status, None, None, reason, detail))
             continue
-        where = c.read(thing, WHERE)
+        where = robot.read_property(WHERE)
         reached = (float(where["x"]), float(where["y"]), float(where["z"]))
-        rows.append(IkRow(target, status, reached, math.dist(reached, target), reason, detail, c.read(thing, JOINTS)))
+        rows.append(IkRow(target, status, reached, math.dist(reached, target), reason, detail, robot.read_property(JOINTS)))
     return rows
 
 
@@ -103,48 +100,3 @@ def summary(rows: list[IkRow]) -> str:
     if reasons:
         text += " (" + ", ".join(f"{n} {reason}" for reason, n in sorted(reasons.items())) + ")"
     return text
-
-
-# --- consumers ------------------------------------------------------------------------------------
-class HttpThings:
-    """A minimal WoT HTTP consumer for Things whose TDs are at `{base}/{thing}` (the adapter's layout):
-    readproperty and invokeaction through the TDs' forms; problem+json errors become Problems."""
-
-    def __init__(self, base: str, action_timeout: float = 300.0):
-        import httpx
-
-        self.base = base.rstrip("/")
-        self.http = httpx.Client(timeout=httpx.Timeout(10.0))
-        self.action_timeout = action_timeout
-        self._tds: dict[str, dict] = {}
-
-    def close(self) -> None:
-        self.http.close()
-
-    def _check(self, r) -> Any:
-        if r.status_code >= 300:
-            if r.headers.get("content-type", "").startswith("application/problem+json"):
-                raise Problem.from_json(r.content)
-            raise Problem(f"{r.request.method} {r.request.url}: HTTP {r.status_code} {r.text[:200]}",
-                          status=r.status_code)
-        return r.json() if r.content else None
-
-    def href(self, thing: str, kind: str, name: str, op: str) -> str:
-        if thing not in self._tds:
-            self._tds[thing] = self._check(self.http.get(f"{self.base}/{thing}"))
-        for form in self._tds[thing].get(kind, {}).get(name, {}).get("forms", []):
-            ops = form.get("op", [])
-            if op in ([ops] if isinstance(ops, str) else ops):
-                return form["href"]
-        raise Problem(f"{thing} has no {op} form for {name!r}", status=404)
-
-    def read(self, thing: str, prop: str) -> Any:
-        url = self.href(thing, "properties", prop, "readproperty")
-        return self._check(self.http.get(url, headers={"Accept": "application/json"}))
-
-    def invoke(self, thing: str, action: str, input: Any = NOTHING) -> Any:
-        url = self.href(thing, "actions", action, "invokeaction")
-        kwargs: dict[str, Any] = {"timeout": self.action_timeout}
-        if input is not NOTHING:
-            kwargs["json"] = input
-        return self._check(self.http.post(url, **kwargs))

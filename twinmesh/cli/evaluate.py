@@ -3,29 +3,14 @@ from __future__ import annotations
 
 import io
 import sys
-from contextlib import contextmanager
-from typing import Iterator
 
 import click
 from tqdm import tqdm
 
-from twinmesh.apps.evaluation import Consumer, HttpThings, evaluate_ik, read_targets, summary, write_table
+from twinmesh.apps.evaluation import evaluate_ik, read_targets, summary, write_table
 from twinmesh.cli.exits import problem_exit
-from twinmesh.cli.mesh_client import mesh_client
+from twinmesh.cli.mesh_client import consumer_for
 from twinmesh.wot.problem import Problem
-
-
-@contextmanager
-def consumer(settings, via: str | None) -> Iterator[Consumer]:
-    if via:
-        things = HttpThings(via)
-        try:
-            yield things
-        finally:
-            things.close()
-        return
-    with mesh_client(settings) as client:
-        yield client
 
 
 # --- the command ----------------------------------------------------------------------------------
@@ -40,12 +25,14 @@ def eval_command() -> None:
               help="CSV of targets x,y,z (mm, the robot TD's frame); a header line is allowed.")
 @click.option("--via", metavar="URL", help="Use the WoT HTTP Things at URL (e.g. the adapter, http://127.0.0.1:8080) "
               "instead of Zenoh.")
+@click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS",
+              help="With --via: bearer:TOKEN or basic:USER:PASS.")
 @click.option("--out", type=click.Path(dir_okay=False), help="Write the table to this CSV [default: stdout].")
 @click.pass_obj
-def ik_command(settings, thing: str, targets: str, via: str | None, out: str | None) -> None:
+def ik_command(settings, thing: str, targets: str, via: str | None, auth: str | None, out: str | None) -> None:
     """Move a robot to each target with moveToCartesianPosition and measure where it got to."""
     points = read_targets(targets)
-    with consumer(settings, via) as c:
+    with consumer_for(settings, via, auth) as c:
         try:
             rows = evaluate_ik(c, thing, tqdm(points, unit="targets", file=sys.stderr, disable=not sys.stderr.isatty()))
         except Problem as p:

@@ -1,4 +1,5 @@
-"""The one-shot Zenoh consumer every lab command uses; Problems become CLI exits (see `exits`)."""
+"""The one-shot consumers lab commands use (Zenoh, or WoT HTTP with `--via`); Problems become CLI exits
+(see `exits`)."""
 from __future__ import annotations
 
 from collections.abc import Iterator
@@ -6,6 +7,7 @@ from contextlib import contextmanager
 
 import click
 
+from twinmesh import Consumer, consumer
 from twinmesh.cli.exits import problem_exit
 from twinmesh.fabric.client import MeshClient
 from twinmesh.fabric.settings import MeshSettings
@@ -27,3 +29,23 @@ def mesh_client(settings: MeshSettings) -> Iterator[MeshClient]:
 
 def mode_given() -> bool:
     return click.get_current_context().find_root().params.get("mode") is not None
+
+
+@contextmanager
+def consumer_for(settings: MeshSettings, via: str | None = None, auth: str | None = None) -> Iterator[Consumer]:
+    """A `twinmesh.Consumer` whose `thing(name)` is the Thing at `{via}/{name}` (WoT HTTP, with `auth`:
+    bearer:TOKEN or basic:USER:PASS), or without `via` the Thing of that name on the mesh."""
+    if via:
+        try:
+            made = consumer(auth=auth, base=via)
+        except ValueError as e:
+            raise click.BadParameter(str(e), param_hint="--auth") from None
+        try:
+            with made:
+                yield made
+        except Problem as p:
+            raise problem_exit(p) from None
+        return
+    with mesh_client(settings) as client:
+        with consumer(session=client.session, settings=settings) as made:
+            yield made

@@ -1,21 +1,10 @@
 """`twinmesh workflow`: the lab's workflows against a running lab, over Zenoh or WoT HTTP."""
 from __future__ import annotations
 
-from contextlib import contextmanager
-from typing import Iterator
-
 import click
 
-from twinmesh.apps.cube_workflow import (
-    SENSOR_TIMEOUT,
-    Consumer,
-    HttpConsumer,
-    MeshConsumer,
-    Step,
-    StepFailed,
-    cube_workflow,
-)
-from twinmesh.cli.mesh_client import mesh_client
+from twinmesh.apps.cube_workflow import SENSOR_TIMEOUT, Step, StepFailed, cube_workflow
+from twinmesh.cli.mesh_client import consumer_for
 
 
 # --- the commands ----------------------------------------------------------------------------------
@@ -36,7 +25,7 @@ def workflow_command() -> None:
 def cube_command(settings, via: str | None, auth: str | None, runs: int, sensor_timeout: float) -> None:
     """The lab's cube workflow: dobot getCube, belt 2 to infrared sensor 2, uarm picks the cube, shows it to
     the colour sensor and puts it on belt 1, belt 1 to infrared sensor 1, dobot returnCube."""
-    with _consumer(settings, via, auth) as consumer:
+    with consumer_for(settings, via, auth) as consumer:
         for n in range(1, runs + 1):
             if runs > 1:
                 click.echo(f"run {n} of {runs}")
@@ -50,16 +39,3 @@ def cube_command(settings, via: str | None, auth: str | None, runs: int, sensor_
 
 def _print_step(s: Step) -> None:
     click.echo(f"  {s.number}. {s.title}: {s.seconds:.2f} s" + (f" -- {s.detail}" if s.detail else ""))
-
-
-@contextmanager
-def _consumer(settings, via: str | None, auth: str | None) -> Iterator[Consumer]:
-    if via:
-        consumer = HttpConsumer(via, auth)
-        try:
-            yield consumer
-        finally:
-            consumer.close()
-        return
-    with mesh_client(settings) as client:
-        yield MeshConsumer(client)

@@ -15,12 +15,13 @@ import msgspec
 
 from twinmesh.fabric.keys import Keys
 from twinmesh.fabric.settings import MeshSettings
-from twinmesh.wot.invocation import ID, ActionStatus
+from twinmesh.wot.consumed import NOTHING, Callback
+from twinmesh.wot.invocation import FINISHED, ID, ActionStatus
 from twinmesh.wot.payload import JSON_ERRORS
 from twinmesh.wot.problem import BadGateway, NotFound, Problem, TimedOut, Unavailable
-from twinmesh.wot.td import AffordanceKind, ThingDescription, decode_td
+from twinmesh.wot.td import AffordanceKind, Form, ThingDescription, decode_td
 
-NOTHING = object()  # "no input" for invoke, distinct from a JSON null input
+POLL = 2.0  # s one status query of a synchronous invocation waits for its end, at most
 
 
 @dataclass
@@ -113,10 +114,32 @@ class MeshClient:
                      what=("properties", prop))
 
     def invoke(self, thing: str, action: str, input: Any = NOTHING, timeout: float | None = None) -> Any:
+        """The action's output once it is over (its problem raised if it failed), within `timeout`
+        (default: the settings' action timeout). Carried as an asynchronous invocation with long-poll
+        queries of at most `POLL` s each, so that no Zenoh query lives as long as a robot's motion."""
         payload = None if input is NOTHING else msgspec.json.encode(input)
         timeout = self.settings.action_timeout if timeout is None else timeout
-        return _json(self.request(self.keys.action(thing, action), payload, timeout, thing=thing,
-                                  what=("actions", action)).payload)
+        deadline = time.monotonic() + timeout
+        key = self.keys.action(thing, action)
+        what: tuple[AffordanceKind, str] = ("actions", action)
+        poll = min(POLL, timeout)
+        status = self.decode_status(self.request(key, payload, poll + self.settings.query_timeout, thing=thing,
+                                                 what=what, parameters=f"async;sync;wait={poll:g}").payload)
+        while status.status not in FINISHED:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimedOut(f"{thing} did not finish {action} within {timeout:g} s (it is {status.status})")
+            poll = min(POLL, left)
+            status = self.decode_status(self.request(key, None, poll + self.settings.query_timeout, thing=thing,
+                                                     what=what, parameters=f"id={status.id};wait={poll:g}").payload)
+        if status.status != "completed":
+            raise Problem.from_json(msgspec.json.encode(status.error or {}))
+        return status.output
+
+    def invoke_bytes(self, thing: str, action: str, payload: bytes | None, timeout: float | None = None) -> bytes:
+        """`invoke` with the input and the output as JSON bytes (b"" for none): the HTTP adapter's."""
+        out = self.invoke(thing, action, NOTHING if payload is None else _json(payload), timeout)
+        return b"" if out is None else msgspec.json.encode(out)
 
     # --- asynchronous actions (twinmesh.fabric.server's selectors) ---------------------------------------
     def invoke_async(self, thing: str, action: str, input: Any = NOTHING) -> ActionStatus:
@@ -165,12 +188,12 @@ class MeshClient:
 
     def observe(self, thing: str, prop: str, callback: Callable[[Any], None]):
         """Call `callback(value)` on each published change; returns the subscriber (undeclare to stop)."""
-        return self._subscribe(self.keys.property(thing, prop), callback)
+        return self.subscribe_key(self.keys.property(thing, prop), callback)
 
     def subscribe(self, thing: str, event: str, callback: Callable[[Any], None]):
-        return self._subscribe(self.keys.event(thing, event), callback)
+        return self.subscribe_key(self.keys.event(thing, event), callback)
 
-    def _subscribe(self, key: str, callback: Callable[[Any], None]):
+    def subscribe_key(self, key: str, callback: Callable[[Any], None]):
         return self.session.declare_subscriber(key, lambda s: callback(_json(s.payload.to_bytes())))
 
 
@@ -181,3 +204,74 @@ def _json(payload: bytes) -> Any:
         return msgspec.json.decode(payload)
     except JSON_ERRORS:
         raise BadGateway(f"a peer replied with invalid JSON: {payload[:100]!r}") from None
+
+
+class ZenohClient:
+    """A `twinmesh.wot.consumed.ProtocolClient` for `zenoh:` forms (`zenoh:<key>[?parameters]`, as
+    `twinmesh.fabric.server` serves them) on one open session."""
+
+    schemes = ("zenoh",)
+
+    def __init__(self, session, settings: MeshSettings | None = None):
+        self.mesh = MeshClient(session, settings)
+
+    def accepts(self, form: Form, op: str) -> bool:
+        return True
+
+    def _target(self, href: str) -> tuple[str, str, str]:
+        """(key, parameters, thing) of a zenoh: href."""
+        key, _, parameters = href.removeprefix("zenoh:").partition("?")
+        parsed = self.mesh.keys.parse(key)
+        return key, parameters, parsed.thing if parsed else key
+
+    def _request(self, href: str, payload: bytes | None = None, timeout: float | None = None) -> bytes:
+        key, parameters, thing = self._target(href)
+        return self.mesh.request(key, payload, timeout, thing=thing, parameters=parameters).payload
+
+    def fetch_td(self, url: str) -> dict[str, Any]:
+        """`zenoh:<prefix>/<thing>` (or the TD's own key), or a bare Thing name."""
+        key, _, thing = self._target(url if ":" in url else f"zenoh:{self.mesh.keys.td(url)}")
+        td = _json(self.mesh.td_bytes(thing))
+        if not isinstance(td, dict):
+            raise BadGateway(f"{thing} serves no TD")
+        return td
+
+    def read(self, form: Form) -> Any:
+        return _json(self._request(form.href))
+
+    def write(self, form: Form, value: Any) -> None:
+        self._request(form.href, msgspec.json.encode(value))
+
+    def invoke(self, form: Form, input: Any) -> Any:
+        payload = None if input is NOTHING else msgspec.json.encode(input)
+        return _json(self._request(form.href, payload, self.mesh.settings.action_timeout))
+
+    def invoke_async(self, form: Form, input: Any) -> ActionStatus:
+        return self.mesh.decode_status(self._request(form.href, None if input is NOTHING else msgspec.json.encode(input)))
+
+    def query_action(self, href: str) -> ActionStatus:
+        return self.mesh.decode_status(self._request(href))
+
+    def cancel_action(self, href: str) -> ActionStatus | None:
+        return self.mesh.decode_status(self._request(href))
+
+    def read_multiple(self, form: Form, names: list[str]) -> dict[str, Any]:
+        raise NotFound("the Zenoh binding has no readmultipleproperties form")
+
+    def query_all_actions(self, form: Form) -> dict[str, list[ActionStatus]]:
+        return self.mesh.query_all_actions(self._target(form.href)[2])
+
+    def observe(self, form: Form, callback: Callback) -> "ZenohSubscription":
+        key, _, _ = self._target(form.href)
+        return ZenohSubscription(self.mesh.subscribe_key(key, callback))
+
+    def close(self) -> None:
+        """The session is the caller's: it stays open."""
+
+
+class ZenohSubscription:
+    def __init__(self, subscriber: Any):
+        self._subscriber = subscriber
+
+    def stop(self) -> None:
+        self._subscriber.undeclare()

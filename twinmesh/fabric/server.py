@@ -17,7 +17,12 @@ apart by the selector's parameters:
 | `...actions/<a>?id=<id>;cancel` | cancel it (waits up to 5 s for it to stop) | its ActionStatus |
 | `...actions/<a>?calls` (or `actions/*?calls`) | query all | a list of ActionStatus |
 
-Invoking and cancelling act, so they need the exact key; querying is a read, wildcards may.
+`wait=S` (up to 30 s) on `?async` or `?id=` makes the reply wait until the invocation ended or S
+passed (a long poll); `sync` marks a caller that waits for the end anyway (`MeshClient.invoke`): the
+invocation is not listed and is forgotten once its end was delivered. Every query is then short,
+whatever the action's duration, so no Zenoh query state lives for minutes (it is held until the
+query's timeout, not released at the reply). Invoking and cancelling act, so they need the exact
+key; querying is a read, wildcards may.
 """
 from __future__ import annotations
 
@@ -282,11 +287,14 @@ class ExposedThing:
             id = params["id"]
             if not re.fullmatch(ID, id) or self.invocations.get(id).action != action:
                 raise NotFound(f"{action!r} of {self.name} has no invocation {id!r}")
-            status = self.invocations.cancel(id) if "cancel" in params else self.invocations.get(id)
-            return msgspec.json.encode(status)
+            if "cancel" in params:
+                return msgspec.json.encode(self.invocations.cancel(id))
+            return msgspec.json.encode(self.invocations.wait(id, _wait(params)))
         value = self._checked_input(action, payload)
         if "async" in params:
-            return msgspec.json.encode(self.invocations.start(action, lambda: self._perform(action, value)))
+            started = self.invocations.start(action, lambda: self._perform(action, value), hidden="sync" in params)
+            wait = _wait(params)
+            return msgspec.json.encode(self.invocations.wait(started.id, wait) if wait > 0 else started)
         out = self._perform(action, value)
         return None if out is None else msgspec.json.encode(out)
 
@@ -328,3 +336,17 @@ class ExposedThing:
     def _need(self, kind: str, name: str) -> None:
         if name not in getattr(self.td, kind):
             raise ValueError(f"{self.name}: the TD has no {kind[:-1] if kind != 'properties' else 'property'} {name!r}")
+
+
+MAX_WAIT = 30.0  # s a status query may wait for the end
+
+
+def _wait(params: dict[str, str]) -> float:
+    raw = params.get("wait", "0")
+    try:
+        seconds = float(raw)
+    except ValueError:
+        raise BadInput(f"wait must be a number of seconds, not {raw!r}") from None
+    if not 0 <= seconds <= MAX_WAIT:  # also refuses nan and inf
+        raise BadInput(f"wait must be within 0..{MAX_WAIT:g} s, not {raw!r}")
+    return seconds

@@ -326,16 +326,18 @@ class Registry:
         return reply.payload
 
     async def write(self, thing: str, prop: str, payload: bytes) -> None:
-        await self._mutate(thing, self.keys.property(thing, prop), payload, self.settings.query_timeout)
+        key = self.keys.property(thing, prop)
+        await self._mutate(thing, self.client.request, key, payload, self.settings.query_timeout, thing)
 
     async def invoke(self, thing: str, action: str, payload: bytes | None) -> bytes:
-        return await self._mutate(thing, self.keys.action(thing, action), payload, self.settings.action_timeout)
+        """The output once the action is over (MeshClient.invoke: short long-poll queries, however long it takes)."""
+        return await self._mutate(thing, self.client.invoke_bytes, thing, action, payload)
 
     async def invoke_async(self, thing: str, action: str, payload: bytes | None) -> ActionStatus:
         """Start the action on the Thing; its status (the Thing checked the input, as for `invoke`)."""
-        reply = await self._mutate(thing, self.keys.action(thing, action), payload, self.settings.query_timeout,
-                                   parameters="async")
-        return self.client.decode_status(reply)
+        reply: Reply = await self._mutate(thing, self.client.request, self.keys.action(thing, action), payload,
+                                          self.settings.query_timeout, thing, None, "async")
+        return self.client.decode_status(reply.payload)
 
     async def query_action(self, thing: str, action: str, id: str) -> ActionStatus:
         self._entry(thing)
@@ -349,17 +351,16 @@ class Registry:
         self._entry(thing)
         return await self.call(self.client.query_all_actions, thing)
 
-    async def _mutate(self, thing: str, key: str, payload: bytes | None, timeout: float,
-                      parameters: str = "") -> bytes:
+    async def _mutate(self, thing: str, fn: Callable[..., Any], *args: Any) -> Any:
+        """`fn(*args)` in a worker thread, as a change of `thing`: cached values older than it are dropped."""
         entry = self._entry(thing)
         started = time.monotonic()
         entry.epoch += 1
         try:
-            reply: Reply = await self.call(self.client.request, key, payload, timeout, thing, None, parameters)
+            return await self.call(fn, *args)
         finally:
             entry.epoch += 1
             entry.values = {k: v for k, v in entry.values.items() if v.at >= started}
-        return reply.payload
 
     async def file(self, thing: str, name: str) -> Reply:
         """A linked file. Files are not in the TD's affordances: a Thing that is alive but has no

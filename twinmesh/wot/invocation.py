@@ -102,6 +102,7 @@ def now() -> str:
 @dataclass
 class _Entry:
     status: ActionStatus
+    hidden: bool = False  # a synchronous call carried as an asynchronous one: not listed, gone once delivered
     token: Cancellation = field(default_factory=Cancellation)
     ended: threading.Event = field(default_factory=threading.Event)
     ended_at: float = 0.0  # monotonic
@@ -118,9 +119,12 @@ class Invocations:
         self._lock = threading.Lock()
         self._entries: OrderedDict[str, _Entry] = OrderedDict()
 
-    def start(self, action: str, run: Callable[[], Any]) -> ActionStatus:
-        """Queue `run()` (its input already checked); the status says `pending` until a worker takes it."""
-        entry = _Entry(ActionStatus(id=uuid.uuid4().hex, action=action, status="pending", timeRequested=now()))
+    def start(self, action: str, run: Callable[[], Any], hidden: bool = False) -> ActionStatus:
+        """Queue `run()` (its input already checked); the status says `pending` until a worker takes it.
+        A `hidden` invocation (a caller waiting for it synchronously) is not listed by `all()` and is
+        forgotten once `wait` has delivered its end."""
+        entry = _Entry(ActionStatus(id=uuid.uuid4().hex, action=action, status="pending", timeRequested=now()),
+                       hidden)
         with self._lock:
             self._prune()
             self._entries[entry.status.id] = entry
@@ -132,11 +136,22 @@ class Invocations:
             self._prune()
             return self._copy(self._find(id))
 
+    def wait(self, id: str, seconds: float) -> ActionStatus:
+        """Its status once it ended, or after `seconds` (a long poll: the end is told at once)."""
+        with self._lock:
+            entry = self._find(id)
+        entry.ended.wait(seconds)
+        with self._lock:
+            if entry.hidden and entry.status.status in FINISHED:
+                self._entries.pop(id, None)
+            return self._copy(entry)
+
     def all(self, action: str | None = None) -> list[ActionStatus]:
         """Every kept invocation (of one action), oldest first."""
         with self._lock:
             self._prune()
-            return [self._copy(e) for e in self._entries.values() if action in (None, e.status.action)]
+            return [self._copy(e) for e in self._entries.values()
+                    if action in (None, e.status.action) and not e.hidden]
 
     def cancel(self, id: str, wait: float = 5.0) -> ActionStatus:
         """Ask the invocation to stop and wait up to `wait` s for it to end; 409 if it already had."""

@@ -216,8 +216,9 @@ def zenoh_forms(td: ThingDescription, prefix: str, thing: str) -> ThingDescripti
     events = {n: msgspec.structs.replace(e, forms=[Form(href=href("events", n),
                                                          op=["subscribeevent", "unsubscribeevent"], contentType=JSON)])
               for n, e in td.events.items()}
+    forms = [Form(href=href("actions", "*") + "?calls", op="queryallactions", contentType=JSON)] if actions else []
     return msgspec.structs.replace(td, title=td.title or thing, id=td.id or thing_id(thing),
-                                   properties=props, actions=actions, events=events, forms=[])
+                                   properties=props, actions=actions, events=events, forms=forms)
 
 
 REWRITTEN_TERMS = frozenset({"forms", "links", "base", "security", "securityDefinitions", "@context", "id", "title"})
