@@ -11,9 +11,11 @@ from typing import AsyncIterator
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.middleware.cors import CORSMiddleware
+from starlette.types import ASGIApp
 
 from twinmesh.http import actions, events, properties, things
 from twinmesh.http.auth import Auth, AuthMiddleware
+from twinmesh.http.fast_reads import FastReads
 from twinmesh.http.gateway import Registry
 from twinmesh.http.problems import exception_handlers
 
@@ -41,3 +43,8 @@ def create_app(registry: Registry, auth: Auth | None = None) -> Starlette:
     app.state.registry = registry
     app.state.auth = auth
     return app
+
+
+def create_asgi(registry: Registry, auth: Auth | None = None) -> ASGIApp:
+    """The app behind its hot path (`fast_reads`): what the adapter serves."""
+    return FastReads(create_app(registry, auth), registry, auth)

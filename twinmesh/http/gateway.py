@@ -313,6 +313,16 @@ class Registry:
             out = entry.rendered[base] = make(entry.td, entry.source)  # type: ignore[arg-type]
         return out
 
+    def cached(self, thing: str, prop: str) -> bytes | None:
+        """The fresh cached value `read` would answer without a round trip, else None."""
+        entry = self._things.get(thing)
+        if entry is None or not entry.alive or self.closing:
+            return None
+        cached = entry.values.get(prop)
+        if cached is None or time.monotonic() - cached.at > self.max_age:
+            return None
+        return cached.payload
+
     async def read(self, thing: str, prop: str) -> bytes:
         entry = self._entry(thing)
         cached = entry.values.get(prop)

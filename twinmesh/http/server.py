@@ -19,7 +19,7 @@ import uvicorn
 
 from twinmesh.fabric.session import open_session
 from twinmesh.fabric.settings import MeshSettings
-from twinmesh.http.app import create_app
+from twinmesh.http.app import create_asgi
 from twinmesh.http.auth import parse_auth
 from twinmesh.http.gateway import Registry
 
@@ -57,7 +57,7 @@ def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] 
     host, port = address
     with open_session(settings) as session:
         registry = Registry(session, settings)
-        config = uvicorn.Config(create_app(registry, security), host=host, port=int(port), lifespan="on",
+        config = uvicorn.Config(create_asgi(registry, security), host=host, port=int(port), lifespan="on",
                                 log_config=None, access_log=log.isEnabledFor(logging.DEBUG),
                                 timeout_graceful_shutdown=GRACE,  # type: ignore[arg-type]  # a float works
                                 server_header=False)

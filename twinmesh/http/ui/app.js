@@ -1,0 +1,269 @@
+// The lab's control page: every Thing the adapter lists, drawn from its TD alone (no per-device HTML).
+// Properties show their live value (the adapter's own SSE streams), writable ones and actions get a
+// form generated from their schema, answers and problems are shown after each call, events are logged.
+// With HTTP auth on, the credentials are asked once and sent with every call, the streams included
+// (they are read with fetch, which can send them; EventSource cannot).
+
+const page = { auth: sessionStorage.getItem("twinmesh-auth"), challenge: null };
+const $ = (tag, attrs = {}, ...children) => {
+  const el = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (v === undefined || v === null || v === false) continue;
+    if (k === "text") el.textContent = v; else el.setAttribute(k, v === true ? "" : v);
+  }
+  el.append(...children.filter((c) => c !== null && c !== undefined));
+  return el;
+};
+const status = (text) => { document.getElementById("status").textContent = text; };
+const ops = (form) => [].concat(form.op || []);
+const formFor = (affordance, op, sse = false) =>
+  (affordance.forms || []).find((f) => ops(f).includes(op) && (f.subprotocol === "sse") === sse);
+const unitOf = (schema) => (schema && schema.unit ? String(schema.unit).replace(/^qudt:/, "") : "");
+
+class NeedsCredentials extends Error {}
+
+async function api(url, options = {}) {
+  const headers = new Headers(options.headers || {});
+  if (page.auth) headers.set("Authorization", page.auth);
+  const r = await fetch(url, { ...options, headers });
+  if (r.status === 401) {
+    askCredentials(r.headers.get("WWW-Authenticate") || "Basic");
+    throw new NeedsCredentials("credentials required");
+  }
+  return r;
+}
+
+function askCredentials(challenge) {
+  page.challenge = challenge.split(" ")[0].toLowerCase();
+  const login = document.getElementById("login");
+  document.getElementById("scheme").textContent = page.challenge === "bearer" ? "a bearer token" : "user and password";
+  login.user.parentElement.hidden = page.challenge === "bearer";
+  login.hidden = false;
+  status("Credentials required");
+}
+
+document.getElementById("login").addEventListener("submit", (e) => {
+  e.preventDefault();
+  const f = e.target;
+  page.auth = page.challenge === "bearer" ? `Bearer ${f.secret.value}` : `Basic ${btoa(`${f.user.value}:${f.secret.value}`)}`;
+  sessionStorage.setItem("twinmesh-auth", page.auth);
+  f.hidden = true;
+  start();
+});
+
+// --- answers ------------------------------------------------------------------------------------
+async function show(out, response) {
+  const text = await response.text();
+  out.dataset.ok = String(response.ok);
+  out.dataset.status = String(response.status);
+  let body = text;
+  try { body = JSON.parse(text); } catch { /* not JSON */ }
+  if (!response.ok && body && typeof body === "object" && "title" in body) {
+    out.textContent = `${response.status} ${body.title}: ${body.detail || ""}${body.reason ? ` (${body.reason})` : ""}`;
+  } else if (response.status === 204) {
+    out.textContent = `${response.status} done`;
+  } else {
+    out.textContent = `${response.status} ${typeof body === "string" ? body : JSON.stringify(body, null, 1)}`;
+  }
+}
+
+// --- forms from data schemas ----------------------------------------------------------------------
+// field(schema, label) -> {el, get(), set(value)}: the value as JSON, or undefined when left empty.
+function field(schema = {}, label = "value") {
+  const hint = [unitOf(schema), schema.minimum !== undefined ? `≥ ${schema.minimum}` : "",
+    schema.maximum !== undefined ? `≤ ${schema.maximum}` : ""].filter(Boolean).join(" ");
+  const wrap = (input) => $("label", {}, $("span", { text: schema.title || label }), input,
+    hint ? $("span", { class: "hint", text: hint }) : null);
+  if (schema.enum) {
+    const select = $("select", { name: label }, ...schema.enum.map((v) => $("option", { value: JSON.stringify(v), text: String(v) })));
+    return { el: wrap(select), get: () => JSON.parse(select.value), set: (v) => { select.value = JSON.stringify(v); } };
+  }
+  if (schema.type === "boolean") {
+    const select = $("select", { name: label }, $("option", { value: "true", text: "true" }), $("option", { value: "false", text: "false" }));
+    return { el: wrap(select), get: () => select.value === "true", set: (v) => { select.value = String(v); } };
+  }
+  if (schema.type === "number" || schema.type === "integer") {
+    const input = $("input", { type: "number", name: label, min: schema.minimum, max: schema.maximum,
+      step: schema.type === "integer" ? (schema.multipleOf || 1) : (schema.multipleOf || "any") });
+    const start = schema.default ?? ((schema.minimum ?? 0) <= 0 && 0 <= (schema.maximum ?? 0) ? 0 : schema.minimum);
+    if (start !== undefined) input.value = start;
+    return { el: wrap(input), get: () => (input.value === "" ? undefined : Number(input.value)), set: (v) => { input.value = v; } };
+  }
+  if (schema.type === "string" && !schema.oneOf) {
+    const input = $("input", { type: "text", name: label, value: schema.default });
+    return { el: wrap(input), get: () => (input.value === "" ? undefined : input.value), set: (v) => { input.value = v; } };
+  }
+  if (schema.type === "object" && schema.properties && !schema.oneOf) {
+    const parts = Object.entries(schema.properties).map(([k, s]) => [k, field(s, k)]);
+    const set = $("fieldset", { "data-field": label }, $("legend", { text: schema.title || label }), ...parts.map(([, f]) => f.el));
+    return {
+      el: set,
+      get: () => Object.fromEntries(parts.map(([k, f]) => [k, f.get()]).filter(([, v]) => v !== undefined)),
+      set: (v) => parts.forEach(([k, f]) => v && k in v && f.set(v[k])),
+    };
+  }
+  if (schema.type === "array" && schema.items && !Array.isArray(schema.items) && schema.minItems === schema.maxItems
+      && schema.minItems > 0 && schema.minItems <= 8) {
+    const parts = Array.from({ length: schema.minItems }, (_, i) => field(schema.items, `${label}[${i}]`));
+    const set = $("fieldset", { "data-field": label }, $("legend", { text: schema.title || label }), ...parts.map((f) => f.el));
+    return { el: set, get: () => parts.map((f) => f.get()), set: (v) => Array.isArray(v) && parts.forEach((f, i) => f.set(v[i])) };
+  }
+  const area = $("textarea", { name: label, placeholder: "JSON" });  // oneOf, free objects, long arrays
+  return { el: wrap(area), get: () => (area.value.trim() === "" ? undefined : JSON.parse(area.value)),
+           set: (v) => { area.value = JSON.stringify(v); } };
+}
+
+// --- one Thing ------------------------------------------------------------------------------------
+function propertyRow(td, name, p) {
+  const value = $("output", { class: "value", "data-thing": td.title, "data-property": name, text: "…" });
+  const row = $("div", { class: "affordance property", "data-property": name },
+    $("span", { class: "name", text: p.title || name }), " ", value, " ", $("span", { class: "unit", text: unitOf(p) }));
+  const read = formFor(p, "readproperty");
+  if (read) api(read.href).then(async (r) => { if (r.ok) value.textContent = await r.text(); }).catch(() => {});
+  const write = formFor(p, "writeproperty");
+  if (write) {
+    const f = field(p, name);
+    const out = $("pre", { class: "answer", hidden: true });
+    const form = $("form", { class: "call", "data-property": name }, f.el, $("button", { type: "submit", text: "Write" }));
+    form.addEventListener("submit", async (e) => {
+      e.preventDefault();
+      out.hidden = false;
+      try {
+        await show(out, await api(write.href, { method: write["htv:methodName"] || "PUT",
+          headers: { "Content-Type": "application/json" }, body: JSON.stringify(f.get() ?? null) }));
+      } catch (err) { out.dataset.ok = "false"; out.textContent = String(err.message || err); }
+    });
+    row.append(form, out);
+  }
+  return row;
+}
+
+function actionRow(td, name, a) {
+  const invoke = formFor(a, "invokeaction");
+  const f = a.input ? field(a.input, "input") : null;
+  const out = $("pre", { class: "answer", hidden: true });
+  const form = $("form", { class: "call", "data-action": name }, f ? f.el : null,
+    $("button", { type: "submit", text: a.title || name }));
+  form.addEventListener("submit", async (e) => {
+    e.preventDefault();
+    out.hidden = false;
+    out.textContent = "…";
+    try {
+      const body = f ? JSON.stringify(f.get() ?? null) : undefined;
+      await show(out, await api(invoke.href, { method: invoke["htv:methodName"] || "POST",
+        headers: body === undefined ? {} : { "Content-Type": "application/json" }, body }));
+    } catch (err) { out.dataset.ok = "false"; out.textContent = String(err.message || err); }
+  });
+  return $("div", { class: "affordance action", "data-action": name },
+    $("span", { class: "name", text: name }), a.description ? $("div", { class: "hint", text: a.description }) : null, form, out);
+}
+
+function eventRow(td, name, e) {
+  return $("div", { class: "affordance event", "data-event": name }, $("span", { class: "name", text: e.title || name }),
+    $("ol", { class: "log", "data-thing": td.title, "data-event": name }));
+}
+
+function render(td) {
+  const links = (td.links || []).map((l) => $("a", { href: l.href, type: l.type, text: l.rel === "self" ? "TD" : (l.href.split("/").pop() || l.rel) }));
+  if (page.view) links.push($("a", { href: page.view, text: "3D view" }));
+  const section = $("section", { class: "thing", id: `thing-${td.title}`, "data-thing": td.title },
+    $("h2", { text: td.title }), td.description ? $("p", { class: "description", text: td.description }) : null,
+    $("div", { class: "links" }, ...links));
+  const props = Object.entries(td.properties || {}), actions = Object.entries(td.actions || {}), events = Object.entries(td.events || {});
+  if (props.length) section.append($("h3", { text: "Properties" }), ...props.map(([n, p]) => propertyRow(td, n, p)));
+  if (actions.length) section.append($("h3", { text: "Actions" }), ...actions.map(([n, a]) => actionRow(td, n, a)));
+  if (events.length) section.append($("h3", { text: "Events" }), ...events.map(([n, e]) => eventRow(td, n, e)));
+  return section;
+}
+
+// --- live updates -----------------------------------------------------------------------------------
+async function follow(url, onEvent, stop) {
+  while (!stop.stopped) {
+    try {
+      const r = await api(url, { headers: { Accept: "text/event-stream" } });
+      if (!r.ok) throw new Error(`${r.status}`);
+      const reader = r.body.pipeThrough(new TextDecoderStream()).getReader();
+      let buffer = "";
+      for (;;) {
+        const { value, done } = await reader.read();
+        if (done || stop.stopped) break;
+        buffer += value.replace(/\r\n/g, "\n");
+        let end;
+        while ((end = buffer.indexOf("\n\n")) >= 0) {
+          const frame = buffer.slice(0, end);
+          buffer = buffer.slice(end + 2);
+          let event = "message"; const data = [];
+          for (const line of frame.split("\n")) {
+            if (line.startsWith("event:")) event = line.slice(6).trim();
+            else if (line.startsWith("data:")) data.push(line.slice(5).replace(/^ /, ""));
+          }
+          if (data.length) onEvent(event, data.join("\n"));
+        }
+      }
+    } catch (err) {
+      if (err instanceof NeedsCredentials) return;
+    }
+    await new Promise((done) => setTimeout(done, 2000));  // the Thing left, or the adapter restarts
+  }
+}
+
+function live(td, section, stop) {
+  const observe = (td.forms || []).find((f) => ops(f).includes("observeallproperties"));
+  if (observe) {
+    follow(observe.href, (name, data) => {
+      const out = section.querySelector(`output[data-property="${CSS.escape(name)}"]`);
+      if (out) out.textContent = data;
+    }, stop);
+  }
+  const subscribe = (td.forms || []).find((f) => ops(f).includes("subscribeallevents"));
+  if (subscribe) {
+    follow(subscribe.href, (name, data) => {
+      const log = section.querySelector(`ol[data-event="${CSS.escape(name)}"]`);
+      if (!log) return;
+      log.prepend($("li", { text: `${new Date().toLocaleTimeString()} ${data}` }));
+      while (log.children.length > 50) log.lastChild.remove();
+    }, stop);
+  }
+}
+
+// --- the page -------------------------------------------------------------------------------------
+const shown = new Map();  // title -> {section, stop}
+
+function place(td) {
+  const old = shown.get(td.title);
+  if (old) old.stop.stopped = true;
+  const section = render(td);
+  const stop = { stopped: false };
+  const main = document.getElementById("things");
+  if (old) old.section.replaceWith(section);
+  else {
+    const after = [...shown.keys()].sort().find((t) => t > td.title);
+    main.insertBefore(section, after ? shown.get(after).section : null);
+  }
+  shown.set(td.title, { section, stop });
+  live(td, section, stop);
+}
+
+async function start() {
+  try {
+    const config = await fetch("/_ui/config.json").then((r) => (r.ok ? r.json() : {})).catch(() => ({}));
+    page.view = config.view || null;
+    if (page.view) document.getElementById("views").append($("a", { href: page.view, text: "3D view of the lab" }));
+    const r = await api("/things");
+    const tds = await r.json();
+    tds.forEach(place);
+    status(`${tds.length} Things`);
+    document.body.dataset.ready = "true";
+    follow("/events", async (kind, data) => {
+      const { title } = JSON.parse(data);
+      if (kind === "thing_deleted") { shown.get(title)?.section.classList.add("gone"); return; }
+      const td = await api(`/${title}`).then((x) => x.json());
+      place(td);
+      status(`${shown.size} Things`);
+    }, { stopped: false });
+  } catch (err) {
+    if (!(err instanceof NeedsCredentials)) status(`Cannot load the Things: ${err.message || err}`);
+  }
+}
+
+start();
