@@ -20,7 +20,7 @@ from twinmesh.http.gateway import Registry
 from twinmesh.http.problems import exception_handlers
 
 
-def create_app(registry: Registry, auth: Auth | None = None) -> Starlette:
+def create_app(registry: Registry, auth: Auth | None = None, view: str | None = None) -> Starlette:
     """Discovery routes first (`/things` must not be taken for a Thing named `things`)."""
 
     @asynccontextmanager
@@ -42,6 +42,7 @@ def create_app(registry: Registry, auth: Auth | None = None) -> Starlette:
                     middleware=middleware, exception_handlers=exception_handlers(), lifespan=lifespan)
     app.state.registry = registry
     app.state.auth = auth
+    app.state.view = view  # the URL of the live 3D view, when one is served
     return app
 
 

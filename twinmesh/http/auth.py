@@ -3,7 +3,8 @@
 What is protected: every affordance (properties, actions, events, both long-poll and SSE) and the
 linked files. What stays public: discovery, i.e. the TDs (`/{thing}`, `/things`, `/things/{id}`,
 `/.well-known/wot`, `/`), because a WoT client fetches a TD before it knows which credentials to
-use (node-wot looks credentials up by the TD's `id`) and the TDs are what declare the scheme.
+use (node-wot looks credentials up by the TD's `id`) and the TDs are what declare the scheme; and
+the control page's own files (`/_ui/...`), which ask for the credentials and then send them.
 
 SSE and auth: node-wot 0.9.2's SSE client (the `eventsource` package) sends no Authorization
 header, so with auth on, node-wot can only observe over long-poll; that is why the long-poll form
@@ -79,9 +80,9 @@ def parse_auth(spec: str | None) -> Auth | None:
 
 
 def is_public(path: str) -> bool:
-    """Discovery paths: the TDs and the directory (see the module docstring)."""
+    """Discovery paths: the TDs and the directory, and the control page (see the module docstring)."""
     segments = [s for s in path.split("/") if s]
-    return len(segments) <= 1 or segments[0] in ("things", ".well-known", "events")
+    return len(segments) <= 1 or segments[0] in ("things", ".well-known", "events", "_ui")
 
 
 class AuthMiddleware:
@@ -104,6 +105,11 @@ class AuthMiddleware:
             await self.app(scope, receive, send)
             return
         detail = "credentials required" if header is None else "wrong credentials"
+        challenge = self.auth.challenge()
+        if any(k == b"x-requested-with" for k, _ in scope["headers"]):
+            # a script asks (the control page): a `Basic` challenge would make the browser open its own
+            # login dialog over the page's form, so the scheme is named so that no browser knows it
+            challenge = "X-Page-" + challenge
         problem = with_headers(Unauthorized(f"{detail} ({self.auth.scheme}, see the TD's securityDefinitions)"),
-                               {"WWW-Authenticate": self.auth.challenge()})
+                               {"WWW-Authenticate": challenge})
         await problem_response(problem, scope["path"])(scope, receive, send)

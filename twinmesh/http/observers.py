@@ -58,14 +58,19 @@ class Observers:
     def __init__(self, feed_size: int = 256):
         self.feed_size = feed_size
         self._feeds: dict[tuple[str, str, str], set[Feed]] = {}
+        self._everything: set[Feed] = set()  # the control page's one stream per browser tab
 
     def count(self) -> int:
         """Observers connected now (each feed once, however many affordances it watches)."""
-        return len({id(feed) for feeds in self._feeds.values() for feed in feeds})
+        return len({id(feed) for feeds in self._feeds.values() for feed in feeds}) + len(self._everything)
 
     def publish(self, thing: str, kind: str, change: Change) -> None:
         for feed in self._feeds.get((thing, kind, change.name), ()):
             feed.push(change)
+        if self._everything:
+            named = Change(f"{thing}/{kind}/{change.name}", change.payload, change.at)
+            for feed in self._everything:
+                feed.push(named)
 
     def thing_left(self, thing: str) -> None:
         for (name, _, _), feeds in self._feeds.items():
@@ -74,9 +79,20 @@ class Observers:
                     feed.push(_GONE)
 
     def close_all(self) -> None:
-        for feeds in self._feeds.values():
+        for feeds in [*self._feeds.values(), self._everything]:
             for feed in feeds:
                 feed.push(_CLOSED)
+
+    @contextmanager
+    def watch_everything(self) -> Iterator[Feed]:
+        """Every notification of every Thing (and the directory's), named `<thing>/<kind>/<name>`: a
+        browser gets six connections per host, so a page showing the whole lab uses one stream."""
+        feed = Feed("the lab", self.feed_size * 8)
+        self._everything.add(feed)
+        try:
+            yield feed
+        finally:
+            self._everything.discard(feed)
 
     @contextmanager
     def watch(self, thing: str, kind: str, names: list[str]) -> Iterator[Feed]:

@@ -2,7 +2,9 @@
 
 | route | what |
 |---|---|
-| `GET /` | URLs of the Things' TDs (as node-wot's servient answers `/`) |
+| `GET /` | URLs of the Things' TDs (as node-wot's servient answers); for a browser (`Accept: text/html`) the control page |
+| `GET /_ui/{file}` | the control page's script, style and `config.json` (`twinmesh/http/ui/`) |
+| `GET /_lab/stream` | every change and event of the lab as one SSE stream, `event: <thing>/<kind>/<name>` (the page's) |
 | `GET /.well-known/wot` | the directory's own TD (a WoT Discovery Thing Description Directory) |
 | `GET /things?offset=&limit=` | all TDs, a TDD listing (`application/ld+json` array; `Link: rel=next` when paged) |
 | `GET /things/{id}` | one TD by its (URL-encoded) `id` |
@@ -15,8 +17,10 @@ listings carry an `ETag` (a hash of the body); `If-None-Match` with it answers 3
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import re
+from importlib import resources
 
 import msgspec
 from starlette.requests import Request
@@ -53,8 +57,32 @@ async def thing_description(request: Request) -> Response:
 
 
 async def index(request: Request) -> Response:
+    """A browser (asking for HTML) gets the control page; WoT clients the list of TD URLs."""
+    if "text/html" in request.headers.get("accept", ""):
+        return Response(_ui_file("index.html"), media_type="text/html; charset=utf-8",
+                        headers={"Cache-Control": "no-cache"})
     base = base_url(request)
     return Response(msgspec.json.encode([f"{base}/{n}" for n in registry(request).names()]), media_type=JSON)
+
+
+UI_FILES = {"index.html": "text/html; charset=utf-8", "app.js": "text/javascript; charset=utf-8",
+            "style.css": "text/css; charset=utf-8"}
+
+
+@functools.cache
+def _ui_file(name: str) -> bytes:
+    return (resources.files("twinmesh.http") / "ui" / name).read_bytes()
+
+
+async def ui_file(request: Request) -> Response:
+    """The control page's script and style (`twinmesh/http/ui/`), and its settings (`config.json`:
+    where the 3D view is, if one is served)."""
+    name = request.path_params["name"]
+    if name == "config.json":
+        return Response(msgspec.json.encode({"view": request.app.state.view}), media_type=JSON)
+    if name not in UI_FILES:
+        raise NotFound(f"the control page has no file {name!r}")
+    return Response(_ui_file(name), media_type=UI_FILES[name], headers={"Cache-Control": "no-cache"})
 
 
 async def well_known(request: Request) -> Response:
@@ -113,6 +141,12 @@ async def directory_events(request: Request) -> Response:
     return EventStream(registry(request).observers.watch(DIRECTORY, "events", names), named=True)
 
 
+async def lab_stream(request: Request) -> Response:
+    """Every property change and event of every Thing, and the directory's notifications, as one SSE
+    stream (`event: <thing>/<kind>/<name>`): the control page's live updates. Needs the credentials."""
+    return EventStream(registry(request).observers.watch_everything(), named=True)
+
+
 async def linked_file(request: Request) -> Response:
     thing = thing_name(request)
     name = request.path_params["name"]
@@ -125,6 +159,8 @@ async def linked_file(request: Request) -> Response:
 routes_top = [
     Route("/", index, methods=["GET"]),
     Route("/.well-known/wot", well_known, methods=["GET"]),
+    Route("/_ui/{name}", ui_file, methods=["GET"]),
+    Route("/_lab/stream", lab_stream, methods=["GET"]),
     Route("/things", listing, methods=["GET"]),
     Route("/things/{id:path}", by_id, methods=["GET"]),
     Route("/events", directory_events, methods=["GET"]),

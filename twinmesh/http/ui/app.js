@@ -1,5 +1,5 @@
 // The lab's control page: every Thing the adapter lists, drawn from its TD alone (no per-device HTML).
-// Properties show their live value (the adapter's own SSE streams), writable ones and actions get a
+// Properties show their live value (the adapter's own SSE, one stream for the page), writable ones and actions get a
 // form generated from their schema, answers and problems are shown after each call, events are logged.
 // With HTTP auth on, the credentials are asked once and sent with every call, the streams included
 // (they are read with fetch, which can send them; EventSource cannot).
@@ -24,9 +24,12 @@ class NeedsCredentials extends Error {}
 
 async function api(url, options = {}) {
   const headers = new Headers(options.headers || {});
+  headers.set("X-Requested-With", "twinmesh-page");  // a 401 then names no scheme the browser would prompt for
   if (page.auth) headers.set("Authorization", page.auth);
   const r = await fetch(url, { ...options, headers });
   if (r.status === 401) {
+    page.auth = null;  // wrong or missing: ask again
+    sessionStorage.removeItem("twinmesh-auth");
     askCredentials(r.headers.get("WWW-Authenticate") || "Basic");
     throw new NeedsCredentials("credentials required");
   }
@@ -34,7 +37,7 @@ async function api(url, options = {}) {
 }
 
 function askCredentials(challenge) {
-  page.challenge = challenge.split(" ")[0].toLowerCase();
+  page.challenge = challenge.split(" ")[0].toLowerCase().replace(/^x-page-/, "");
   const login = document.getElementById("login");
   document.getElementById("scheme").textContent = page.challenge === "bearer" ? "a bearer token" : "user and password";
   login.user.parentElement.hidden = page.challenge === "bearer";
@@ -124,7 +127,8 @@ function propertyRow(td, name, p) {
   if (write) {
     const f = field(p, name);
     const out = $("pre", { class: "answer", hidden: true });
-    const form = $("form", { class: "call", "data-property": name }, f.el, $("button", { type: "submit", text: "Write" }));
+    const form = $("form", { class: "call", "data-property": name, novalidate: true }, f.el,
+      $("button", { type: "submit", text: "Write" }));
     form.addEventListener("submit", async (e) => {
       e.preventDefault();
       out.hidden = false;
@@ -142,7 +146,8 @@ function actionRow(td, name, a) {
   const invoke = formFor(a, "invokeaction");
   const f = a.input ? field(a.input, "input") : null;
   const out = $("pre", { class: "answer", hidden: true });
-  const form = $("form", { class: "call", "data-action": name }, f ? f.el : null,
+  // novalidate: the Thing judges the input (its 400 names the field), not the browser
+  const form = $("form", { class: "call", "data-action": name, novalidate: true }, f ? f.el : null,
     $("button", { type: "submit", text: a.title || name }));
   form.addEventListener("submit", async (e) => {
     e.preventDefault();
@@ -177,11 +182,12 @@ function render(td) {
 }
 
 // --- live updates -----------------------------------------------------------------------------------
-async function follow(url, onEvent, stop) {
+async function follow(url, onEvent, stop, onOpen = () => {}) {
   while (!stop.stopped) {
     try {
       const r = await api(url, { headers: { Accept: "text/event-stream" } });
       if (!r.ok) throw new Error(`${r.status}`);
+      onOpen();  // the server registered the stream before its headers went out
       const reader = r.body.pipeThrough(new TextDecoderStream()).getReader();
       let buffer = "";
       for (;;) {
@@ -207,41 +213,41 @@ async function follow(url, onEvent, stop) {
   }
 }
 
-function live(td, section, stop) {
-  const observe = (td.forms || []).find((f) => ops(f).includes("observeallproperties"));
-  if (observe) {
-    follow(observe.href, (name, data) => {
-      const out = section.querySelector(`output[data-property="${CSS.escape(name)}"]`);
-      if (out) out.textContent = data;
-    }, stop);
-  }
-  const subscribe = (td.forms || []).find((f) => ops(f).includes("subscribeallevents"));
-  if (subscribe) {
-    follow(subscribe.href, (name, data) => {
-      const log = section.querySelector(`ol[data-event="${CSS.escape(name)}"]`);
-      if (!log) return;
-      log.prepend($("li", { text: `${new Date().toLocaleTimeString()} ${data}` }));
-      while (log.children.length > 50) log.lastChild.remove();
-    }, stop);
+function update(name, data) {  // one notification of the lab stream: `<thing>/<kind>/<name>`
+  const [thing, kind, affordance] = name.split("/");
+  const section = shown.get(thing)?.section;
+  if (!section) return;
+  if (kind === "properties") {
+    const out = section.querySelector(`output[data-property="${CSS.escape(affordance)}"]`);
+    if (out) out.textContent = data;
+  } else if (kind === "events") {
+    const log = section.querySelector(`ol[data-event="${CSS.escape(affordance)}"]`);
+    if (!log) return;
+    log.prepend($("li", { text: `${new Date().toLocaleTimeString()} ${data}` }));
+    while (log.children.length > 50) log.lastChild.remove();
   }
 }
 
 // --- the page -------------------------------------------------------------------------------------
-const shown = new Map();  // title -> {section, stop}
+const shown = new Map();  // title -> {section}
 
 function place(td) {
   const old = shown.get(td.title);
-  if (old) old.stop.stopped = true;
   const section = render(td);
-  const stop = { stopped: false };
   const main = document.getElementById("things");
   if (old) old.section.replaceWith(section);
   else {
     const after = [...shown.keys()].sort().find((t) => t > td.title);
     main.insertBefore(section, after ? shown.get(after).section : null);
   }
-  shown.set(td.title, { section, stop });
-  live(td, section, stop);
+  shown.set(td.title, { section });
+}
+
+async function directory(kind, data) {
+  const { title } = JSON.parse(data);
+  if (kind === "thing_deleted") { shown.get(title)?.section.classList.add("gone"); return; }
+  place(await api(`/${title}`).then((x) => x.json()));
+  status(`${shown.size} Things`);
 }
 
 async function start() {
@@ -251,16 +257,19 @@ async function start() {
     if (page.view) document.getElementById("views").append($("a", { href: page.view, text: "3D view of the lab" }));
     const r = await api("/things");
     const tds = await r.json();
+    const secured = tds.map((td) => (td.securityDefinitions || {})[[].concat(td.security || [])[0]])
+      .find((d) => d && d.scheme && d.scheme !== "nosec");
+    if (secured && !page.auth) {  // the TDs say what to send: ask before any call is refused
+      askCredentials(secured.scheme);
+      return;
+    }
     tds.forEach(place);
     status(`${tds.length} Things`);
-    document.body.dataset.ready = "true";
-    follow("/events", async (kind, data) => {
-      const { title } = JSON.parse(data);
-      if (kind === "thing_deleted") { shown.get(title)?.section.classList.add("gone"); return; }
-      const td = await api(`/${title}`).then((x) => x.json());
-      place(td);
-      status(`${shown.size} Things`);
-    }, { stopped: false });
+    // one stream for the whole page: a browser opens at most six connections to a host
+    follow("/_lab/stream", (name, data) => {
+      if (name.startsWith("/directory/events/")) directory(name.split("/").pop(), data);
+      else update(name, data);
+    }, { stopped: false }, () => { document.body.dataset.ready = "true"; });
   } catch (err) {
     if (!(err instanceof NeedsCredentials)) status(`Cannot load the Things: ${err.message || err}`);
   }
