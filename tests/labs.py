@@ -110,11 +110,13 @@ def stop_process(p: subprocess.Popen, timeout: float = 15.0) -> bool:
 
 
 def start_lab(tmp: Path, scene: str | None = "lights", http: bool = True, things: set[str] | None = None,
-              extra_args: tuple[str, ...] = ()) -> Lab:
-    """Start `twinmesh up SCENE` (None: `twinmesh up`, the default scene) on free ports and wait until it serves."""
+              extra_args: tuple[str, ...] = (), view: bool = False) -> Lab:
+    """Start `twinmesh up SCENE` (None: `twinmesh up`, the default scene) on free ports and wait until it serves.
+    The live 3D view only when asked (`view`: on a free port; its URL is in the lab's ready line)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     port = free_port()
     args = ["up", *([scene] if scene else []), *extra_args] + (["--http", f"127.0.0.1:{port}"] if http else ["--no-http"])
+    args += ["--view", f"127.0.0.1:{free_port()}"] if view else ["--no-view"]
     log = tmp / f"lab-{scene or 'default'}.log"
     proc = subprocess.Popen(twinmesh_cmd(endpoint, *args), stdout=open(log, "wb"), stderr=subprocess.STDOUT,
                             cwd=REPO, start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
@@ -142,7 +144,10 @@ def start_robot_lab(tmp: Path) -> Lab:
 
 
 def spawn_up(endpoint: str, log: Path, *args: str) -> subprocess.Popen:
-    """`twinmesh up ARGS` on `endpoint` in its own process group, output to `log` (no waiting)."""
+    """`twinmesh up ARGS` on `endpoint` in its own process group, output to `log` (no waiting); the live 3D
+    view on a free port unless ARGS say otherwise."""
+    if "--view" not in args and "--no-view" not in args:
+        args = (*args, "--view", f"127.0.0.1:{free_port()}")
     return subprocess.Popen(twinmesh_cmd(endpoint, "up", *args), stdout=open(log, "wb"), stderr=subprocess.STDOUT,
                             cwd=REPO, start_new_session=True)
 

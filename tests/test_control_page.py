@@ -1,13 +1,18 @@
-"""The control page at `/` of the adapter, in a real headless Chromium: every Thing of the `iot-lab`
-drawn from its TD, live values through the adapter's SSE, forms generated from the schemas, the
-answer or the problem shown after a call; and with HTTP auth, credentials asked once and used for
-every call and the live updates.
+"""The lab in a browser (a real headless Chromium): the control page at `/` of the adapter (every Thing
+of the `iot-lab` drawn from its TD, live values through the adapter's SSE, forms generated from the
+schemas, the answer or the problem shown after a call; with HTTP auth, credentials asked once and
+used for every call and the live updates) and the live 3D view `twinmesh up` serves (the Rerun web
+viewer, rendered by Chromium's software rasterizer: the scene with the robots' colours, and a
+picture that changes when the UR10 moves).
 """
 from __future__ import annotations
 
+import io
+import re
 import time
 
 import httpx
+import numpy as np
 import pytest
 from browser import chromium
 from labs import start_lab
@@ -26,7 +31,7 @@ def browser():
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory, browser):
     tmp = tmp_path_factory.mktemp("page")
-    lab = start_lab(tmp, None, http=True, things=THINGS,
+    lab = start_lab(tmp, None, http=True, things=THINGS, view=True,
                     extra_args=("--speed", "max", "--samples", "3000", "--tdgen-cache", str(tmp / "cache")))
     yield lab
     assert lab.stop(), "the lab did not stop cleanly"
@@ -140,3 +145,68 @@ def test_with_http_auth_the_page_asks_once_and_uses_the_credentials_for_calls_an
         context.close()
     finally:
         assert lab.stop()
+
+
+# --- the live 3D view -------------------------------------------------------------------------------
+VIEW_3D = (0, 40, 700, 760)  # x0, y0, x1, y1 of the 3D view in a 1200 x 800 window (the layout's left pane)
+UR_BLUE = (0.35, 0.55, 0.8)  # the UR10's `ur_blue` material (twinmesh/robot/models/ur10.urdf)
+
+
+def picture(page) -> np.ndarray:
+    from PIL import Image
+
+    x0, y0, x1, y1 = VIEW_3D
+    return np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB"))[y0:y1, x0:x1].astype(int)
+
+
+def ur_blue_pixels(rgb: np.ndarray) -> int:
+    """Pixels of the UR10's blue, however lit: its hue (about 213 degrees) and a clear saturation."""
+    import colorsys
+
+    target = colorsys.rgb_to_hsv(*UR_BLUE)[0]
+    flat = rgb.reshape(-1, 3) / 255.0
+    mx, mn = flat.max(axis=1), flat.min(axis=1)
+    sat = np.where(mx > 0, (mx - mn) / np.maximum(mx, 1e-9), 0)
+    hue = np.array([colorsys.rgb_to_hsv(*p)[0] for p in flat[(sat > 0.3) & (mx > 0.35)]])
+    return int(np.sum(np.abs(hue - target) < 0.03))
+
+
+def settled(page, timeout: float = 120.0) -> np.ndarray:
+    """The 3D view once two pictures 2 s apart are the same (the viewer caught up with the stream)."""
+    deadline = time.monotonic() + timeout
+    last = picture(page)
+    while time.monotonic() < deadline:
+        page.wait_for_timeout(2000)
+        now = picture(page)
+        if ur_blue_pixels(now) > 100 and np.count_nonzero(np.abs(now - last).sum(axis=2) > 30) < 50:
+            return now
+        last = now
+    raise AssertionError("the 3D view did not settle on a picture of the lab")
+
+
+@pytest.fixture
+def view_page(lab, browser):
+    url = re.search(r"3D view (http://\S+)", lab.log.read_text())
+    assert url, f"`twinmesh up` printed no 3D view URL:\n{lab.log.read_text()[-2000:]}"
+    context = browser.new_context(viewport={"width": 1200, "height": 800})
+    p = context.new_page()
+    p.goto(url.group(1))
+    yield p
+    context.close()
+
+
+def test_the_3d_view_renders_the_lab_with_the_robots_colours_and_changes_when_the_ur10_moves(lab, view_page):
+    before = settled(view_page)
+    colours = len(np.unique(before.reshape(-1, 3), axis=0))
+    assert colours > 200, f"a blank view ({colours} colours)"
+    assert ur_blue_pixels(before) > 100  # the UR10, drawn from its URDF with its materials
+    with httpx.Client(base_url=lab.http, timeout=120) as http:
+        now = http.get("/ur10/properties/getJointposition").json()
+        pan = 0.0 if abs(now["shoulder_pan_joint"] - 90) < 45 else 90.0  # a quarter turn of the base
+        r = http.post("/ur10/actions/moveToJointPosition", json={**now, "shoulder_pan_joint": pan,
+                                                                  "shoulder_lift_joint": -90.0, "elbow_joint": 0.0})
+        assert r.status_code == 200, r.text
+    after = settled(view_page)
+    changed = np.count_nonzero(np.abs(after - before).sum(axis=2) > 30)
+    assert changed > 500, f"only {changed} pixels of the 3D view changed after the UR10 moved"
+    print(f"\n3D view: {colours} colours, {ur_blue_pixels(before)} UR-blue pixels; {changed} pixels changed by the move")

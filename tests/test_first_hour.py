@@ -21,7 +21,8 @@ def lab(tmp_path_factory):
 
 
 def run_up(endpoint: str, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run(twinmesh_cmd(endpoint, "up", *args), capture_output=True, text=True, timeout=timeout,
+    view = () if "--view" in args or "--no-view" in args else ("--view", f"127.0.0.1:{free_port()}")
+    return subprocess.run(twinmesh_cmd(endpoint, "up", *args, *view), capture_output=True, text=True, timeout=timeout,
                           cwd=REPO)
 
 
@@ -109,7 +110,8 @@ def test_the_router_endpoint_is_chosen_on_up_itself(tmp_path):
     """`up --zenoh` beats the global --connect (which nobody finds) for where the router listens."""
     chosen = f"tcp/127.0.0.1:{free_port()}"
     log = tmp_path / "up.log"
-    up = subprocess.Popen(twinmesh_cmd(f"tcp/127.0.0.1:{free_port()}", "up", "lights", "--no-http", "--zenoh", chosen),
+    up = subprocess.Popen(twinmesh_cmd(f"tcp/127.0.0.1:{free_port()}", "up", "lights", "--no-http", "--no-view",
+                                       "--zenoh", chosen),
                           stdout=open(log, "wb"), stderr=subprocess.STDOUT, cwd=REPO, start_new_session=True)
     try:
         r = subprocess.run(twinmesh_cmd(chosen, "wait", "--timeout", "60"), capture_output=True, text=True,

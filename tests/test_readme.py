@@ -1,8 +1,8 @@
 """The README keeps its word: every `twinmesh`, `curl` and `printf` command of its `sh` blocks runs, in order.
 
 How each command is run, as a user following the README would run it:
-- `twinmesh up ...` starts a lab (stopping the previous one) on free ports: `--zenoh` and `--http`
-  are added, and every `127.0.0.1:8080` / `127.0.0.1:7447` in later commands is rewritten to them;
+- `twinmesh up ...` starts a lab (stopping the previous one) on free ports: `--zenoh`, `--http` and
+  `--view` are added, and every `127.0.0.1:8080` / `127.0.0.1:7447` in later commands is rewritten to them;
 - a command ending in `&` runs in the background until the end, and must not fail meanwhile;
 - streams (`twinmesh observe`, `twinmesh subscribe`, `curl -N`) run for a few seconds and are then
   interrupted, as a user would press Ctrl-C; they must not fail before that;
@@ -106,6 +106,8 @@ class Walk:
         extra = f" --zenoh tcp/127.0.0.1:{self.zenoh_port}"
         if "--http" not in command and "--no-http" not in command:
             extra += f" --http 127.0.0.1:{self.http_port}"
+        if "--view" not in command and "--no-view" not in command:
+            extra += f" --view 127.0.0.1:{free_port()}"
         self.lab = self.spawn(self.rewrite(command.replace("twinmesh up", "twinmesh up" + extra, 1)), f"{n}.log")
         self.lab_log = f"{n}.log"
 

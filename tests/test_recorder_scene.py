@@ -259,3 +259,24 @@ def test_cube_workflow_recording_shows_both_arms_and_the_cube_round_trip(tmp_pat
 
 def _travel(points: list) -> float:
     return sum(math.dist(a, b) for a, b in zip(points, points[1:]))
+
+
+def test_an_obstacle_exists_from_when_it_was_added_until_it_was_removed(tmp_path):
+    """The room is there for the whole recording; an obstacle only from the scene that adds it to the
+    one that drops it: scrolling back shows the lab as it was."""
+    import rerun as rr
+
+    path = tmp_path / "obstacle.rrd"
+    rec = rr.RecordingStream("obstacle")
+    rec.save(str(path))
+    table = Body("table", "box", (1.0, 1.0, 0.1), Pose((0.0, 0.0, 0.0)))
+    box = Body("obstacle-1", "box", (0.2, 0.2, 0.2), Pose((0.3, 0.0, 0.2)))
+    drawer = SceneDrawer(rec)
+    for at, bodies in ((0.0, [table]), (2.0, [table, box]), (5.0, [table])):
+        rec.set_time("sim_time", duration=at)
+        assert drawer.draw_scene(SceneFiles(SceneDescription("lab", bodies=bodies), {}), time.time(), 0) == []
+    drawer.flush()
+    rec.disconnect()
+    assert static_column(path, "/world/bodies/table", "Boxes3D:half_sizes")
+    assert not static_column(path, "/world/bodies/obstacle-1", "Boxes3D:half_sizes")
+    assert set(sim_times(path, "/world/bodies/obstacle-1")) == {2.0, 5.0}  # drawn at 2 s, cleared at 5 s

@@ -17,7 +17,8 @@ DATA = ["twinmesh/robot/models/ur10.urdf", "twinmesh/robot/models/uarm_swift_pro
         "twinmesh/robot/models/dobot_magician.urdf", "twinmesh/robot/models/pan-tilt.urdf",
         "twinmesh/robot/models/uarm-calibration.csv", "twinmesh/robot/scenes/table-and-wall.json",
         "twinmesh/robot/scenes/cluttered-lab.json", "twinmesh/things/tds/pan-tilt.json",
-        "twinmesh/things/tds/uarm.json", "twinmesh/things/tds/dobot.json"]
+        "twinmesh/things/tds/uarm.json", "twinmesh/things/tds/dobot.json", "twinmesh/http/ui/index.html",
+        "twinmesh/http/ui/app.js", "twinmesh/http/ui/style.css"]
 
 
 @pytest.fixture(scope="module")
@@ -44,11 +45,12 @@ def test_the_iot_lab_starts_from_an_installed_wheel(wheel, tmp_path):
     twinmesh = str(venv / "bin" / "twinmesh")
     elsewhere = tmp_path / "elsewhere"  # not the repository: nothing can be read from the checkout
     elsewhere.mkdir()
-    endpoint, port = f"tcp/127.0.0.1:{free_port()}", free_port()
+    endpoint, port, view = f"tcp/127.0.0.1:{free_port()}", free_port(), free_port()
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     log = tmp_path / "lab.log"
     lab = subprocess.Popen([twinmesh, "--connect", endpoint, "up", "iot-lab", "--speed", "max", "--samples", "2000",
-                            "--http", f"127.0.0.1:{port}", "--tdgen-cache", str(tmp_path / "cache")],
+                            "--http", f"127.0.0.1:{port}", "--view", f"127.0.0.1:{view}",
+                            "--tdgen-cache", str(tmp_path / "cache")],
                            cwd=elsewhere, env=env, stdout=open(log, "wb"), stderr=subprocess.STDOUT,
                            start_new_session=True)
     try:
@@ -58,6 +60,10 @@ def test_the_iot_lab_starts_from_an_installed_wheel(wheel, tmp_path):
         things = httpx.get(f"http://127.0.0.1:{port}/things").json()
         assert {td["title"] for td in things} >= {"uarm", "dobot", "ur10", "pan-tilt-1", "world", "tdgen"}
         assert httpx.get(f"http://127.0.0.1:{port}/pan-tilt-1/properties/panPosition").status_code == 200
+        page = httpx.get(f"http://127.0.0.1:{port}/", headers={"Accept": "text/html"})  # the control page's files
+        assert page.status_code == 200 and "/_ui/app.js" in page.text
+        assert "every Thing the adapter lists" in httpx.get(f"http://127.0.0.1:{port}/_ui/app.js").text
+        assert "Rerun" in httpx.get(f"http://127.0.0.1:{view}/").text  # the live view's viewer, from rerun-sdk
     finally:
         stopped_alone = stop_process(lab, timeout=60)
     assert stopped_alone and lab.returncode == 0, f"the installed lab did not stop on Ctrl-C\n{log.read_text()[-3000:]}"

@@ -21,6 +21,7 @@ from twinmesh.wot.problem import Problem
 
 ADAPTER = "twinmesh.http.server:run"
 RECORDER = "twinmesh.recorder.logger:run"
+VIEW = "twinmesh.recorder.view:run"
 TDGEN_SERVICE = "twinmesh.things.tdgen:run"
 
 
@@ -118,6 +119,9 @@ READY_TIMEOUT = 600.0  # s `up` waits for every Thing of its scene before it giv
 @click.option("--no-http", is_flag=True, help="Do not start the HTTP adapter.")
 @click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS", help=AUTH_HELP)
 @click.option("--record", type=click.Path(dir_okay=False), help="Also record the lab to this .rrd file.")
+@click.option("--view", "view", default="127.0.0.1:9090", show_default=True,
+              help="Serve the live 3D view (a Rerun web viewer) at HOST:PORT; its stream uses the next free port.")
+@click.option("--no-view", is_flag=True, help="Do not serve the live 3D view.")
 @click.option("--speed", default="1", show_default=True, help="Simulation speed factor, or 'max'.")
 @click.option("--samples", type=click.IntRange(min=100), metavar="N",
               help="Random configurations each robot's workspace is sampled with [default: 80000; fewer start "
@@ -127,13 +131,24 @@ READY_TIMEOUT = 600.0  # s `up` waits for every Thing of its scene before it giv
                    "else ~/.cache/twinmesh/tdgen].")
 @click.pass_obj
 def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, http: str, no_http: bool,
-       auth: str | None, record: str | None, speed: str, samples: int | None, tdgen_cache: str | None) -> None:
+       auth: str | None, record: str | None, view: str, no_view: bool, speed: str, samples: int | None,
+       tdgen_cache: str | None) -> None:
     """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
 
     Prints one line with the word `ready` once every Thing answers (scripts: `twinmesh wait`).
     Ctrl-C stops it all."""
-    from twinmesh.lab.readiness import LabDied, LabStatus, PortTaken, free_or_problem, serve_status, wait_ready
+    from twinmesh.lab.readiness import (
+        LabDied,
+        LabStatus,
+        PortTaken,
+        free_or_problem,
+        free_port_near,
+        serve_status,
+        view_free_or_problem,
+        wait_ready,
+    )
     from twinmesh.lab.scenes import DEFAULT_SCENE, scene_specs, scene_things
+    from twinmesh.recorder.view import view_url as make_view_url
     from twinmesh.things.tdgen import THING as TDGEN_THING
     from twinmesh.things.tdgen import default_cache_dir
 
@@ -146,19 +161,27 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     if zenoh_endpoint:
         settings = msgspec.structs.replace(settings, connect=(zenoh_endpoint,))
     address = None if no_http else _host_port(http)
+    view_address = None if no_view else _host_port(view)
     auth = _auth(auth)
     listen = list(settings.listen) + [e for e in settings.connect if e not in settings.listen]
+    view_url, viewer = None, []
     try:
         free_or_problem(listen, address)
+        if view_address is not None:
+            view_free_or_problem(view_address)
+            grpc_port = free_port_near(view_address[0], view_address[1] + 1)
+            view_url = make_view_url(view_address, grpc_port)
+            viewer = [ProcessSpec("view", VIEW, {"address": view_address, "grpc_port": grpc_port})]
     except PortTaken as e:
         raise click.ClickException(e.detail) from None
     router = ProcessSpec("router", "twinmesh.fabric.session:run_router_process", {"listen": listen})
     recorder = [ProcessSpec("recorder", RECORDER, {"path": record})] if record else []
     tdgen = ProcessSpec("tdgen", TDGEN_SERVICE, {"cache_dir": str(tdgen_cache or default_cache_dir())})
-    http_adapter = [] if address is None else [ProcessSpec("adapter", ADAPTER, {"address": address, "auth": auth})]
+    http_adapter = [] if address is None else [ProcessSpec("adapter", ADAPTER, {"address": address, "auth": auth,
+                                                                                 "view": view_url})]
     # the router alone listens; every other process connects to it
     peers = msgspec.structs.replace(settings, listen=())
-    sup = Supervisor(peers, [router, tdgen] + recorder + specs + http_adapter)
+    sup = Supervisor(peers, [router, tdgen] + recorder + viewer + specs + http_adapter)
     set_title(f"up {scene}")
     sup.start()
     url = None if address is None else f"http://{address[0]}:{address[1]}/"
@@ -180,7 +203,8 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     with one_shot_session(peers) as session:
         queryable = serve_status(session, peers, status)
         click.echo(f"twinmesh lab '{scene}' ready: {len(things)} Things on Zenoh {status.zenoh}"
-                   + ("" if url is None else f", HTTP {url}") + (f", recorder writing {record}" if record else "")
+                   + ("" if url is None else f", HTTP {url}") + ("" if view_url is None else f", 3D view {view_url}")
+                   + (f", recorder writing {record}" if record else "")
                    + "  (Ctrl-C to stop)")
         code = sup.run_until_stopped()
         queryable.undeclare()

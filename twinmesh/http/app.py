@@ -46,6 +46,6 @@ def create_app(registry: Registry, auth: Auth | None = None, view: str | None = 
     return app
 
 
-def create_asgi(registry: Registry, auth: Auth | None = None) -> ASGIApp:
+def create_asgi(registry: Registry, auth: Auth | None = None, view: str | None = None) -> ASGIApp:
     """The app behind its hot path (`fast_reads`): what the adapter serves."""
-    return FastReads(create_app(registry, auth), registry, auth)
+    return FastReads(create_app(registry, auth, view), registry, auth)

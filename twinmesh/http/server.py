@@ -48,16 +48,17 @@ async def _serve(server: _Server, registry: Registry, stop: threading.Event) -> 
 
 
 def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] = ("127.0.0.1", 8080),
-        auth: str | None = None) -> None:
+        auth: str | None = None, view: str | None = None) -> None:
     """Serve every Thing of the mesh over HTTP at `address` until `stop` is set.
 
-    `auth` is `bearer:TOKEN` or `basic:USER:PASS` (None: no security).
+    `auth` is `bearer:TOKEN` or `basic:USER:PASS` (None: no security); `view` the URL of the live 3D
+    view, which the control page links to.
     """
     security = parse_auth(auth)
     host, port = address
     with open_session(settings) as session:
         registry = Registry(session, settings)
-        config = uvicorn.Config(create_asgi(registry, security), host=host, port=int(port), lifespan="on",
+        config = uvicorn.Config(create_asgi(registry, security, view), host=host, port=int(port), lifespan="on",
                                 log_config=None, access_log=log.isEnabledFor(logging.DEBUG),
                                 timeout_graceful_shutdown=GRACE,  # type: ignore[arg-type]  # a float works
                                 server_header=False)

@@ -1,7 +1,8 @@
 """When is a lab ready, and how does anyone else find out: the `up` side and the `wait` side.
 
-`twinmesh up` calls it ready once every Thing of its scene answers its TD on the mesh and, with
-the HTTP adapter, once the adapter lists them all; only then does it print its one `ready` line
+`twinmesh up` calls it ready once every Thing of its scene answers its TD on the mesh, its robots'
+workspaces are generated (progress is printed meanwhile) and, with the HTTP adapter, once the
+adapter lists them all; only then does it print its one `ready` line
 and answer on `<prefix>/_lab/status` (a queryable that no Thing key matches: `_lab` is not a
 slug). `twinmesh wait` asks that key until it says ready, or, given Thing names, asks those
 Things for their TDs. Before anything starts, `free_or_problem` checks that the ports a lab
@@ -16,7 +17,11 @@ from typing import Callable, Iterable
 import msgspec
 
 from twinmesh.fabric.settings import MeshSettings
+from twinmesh.messages import relations
+from twinmesh.things.tdgen import THING as TDGEN_THING
 from twinmesh.wot.problem import Problem, Unavailable
+
+PROGRESS_EVERY = 10.0  # s between `up`'s lines saying what it still waits for
 
 STATUS_CHUNK = "_lab/status"
 
@@ -85,6 +90,23 @@ def free_or_problem(zenoh_endpoints: Iterable[str], http: tuple[str, int] | None
                             "choose another with --http HOST:PORT, or --no-http")
 
 
+def view_free_or_problem(view: tuple[str, int]) -> None:
+    """PortTaken when the live 3D view cannot listen at `view`, naming the options that change it."""
+    why = port_in_use(*view)
+    if why:
+        raise PortTaken(f"the 3D view's address {view[0]}:{view[1]} cannot be listened on ({why}); "
+                        "choose another with --view HOST:PORT, or --no-view")
+
+
+def free_port_near(host: str, start: int, tries: int = 100) -> int:
+    """The first port from `start` on that `host` can listen on (the 3D view's stream)."""
+    for port in range(start, min(start + tries, 65536)):
+        if not port_in_use(host, port):
+            return port
+    raise PortTaken(f"no free port on {host} from {start} to {start + tries - 1} for the 3D view's stream; "
+                    "choose another --view HOST:PORT, or --no-view")
+
+
 def serve_status(session, settings: MeshSettings, status: LabStatus):
     """Answer `<prefix>/_lab/status` with `status` (the caller keeps the queryable and undeclares it)."""
     payload = msgspec.json.encode(status)
@@ -106,6 +128,34 @@ def missing_tds(client, things: Iterable[str], timeout: float = 1.0) -> list[str
     return missing
 
 
+def unready_workspaces(client, things: Iterable[str], timeout: float = 1.0) -> list[str]:
+    """The robots among `things` (Things that link their twin.json) whose workspace the tdgen service
+    has not generated yet, with how far its sampling is: a robot is not ready for Cartesian moves
+    before. A failed generation does not hold the lab up (the robot says why on each such move)."""
+    robots = []
+    for thing in things:
+        try:
+            td = client.td(thing)
+        except Problem:
+            return [thing]
+        if any(link.rel == relations.TWIN for link in td.links):
+            robots.append(thing)
+    if not robots:
+        return []
+    try:
+        status = client.read(TDGEN_THING, "robots")
+    except Problem:
+        return [f"{r}'s workspace" for r in robots]
+    out = []
+    for robot in robots:
+        s = status.get(robot) if isinstance(status, dict) else None
+        if isinstance(s, dict) and s.get("status") in ("ready", "failed"):
+            continue
+        share = s.get("progress") if isinstance(s, dict) else None
+        out.append(f"{robot}'s workspace" + (f" ({share * 100:.0f} % sampled)" if isinstance(share, (int, float)) else ""))
+    return out
+
+
 def missing_over_http(base_url: str, things: Iterable[str]) -> list[str]:
     """The Things that the adapter at `base_url` does not list yet (all of them if it does not answer)."""
     import httpx
@@ -125,7 +175,8 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
     """Poll until the lab is ready; returns its status, or raises Unavailable naming what is missing.
 
     `open_client()` is a context manager giving a MeshClient (it raises Unavailable while no router
-    answers). With `things`, ready means they all answer their TD (and `http`, if given, lists them);
+    answers). With `things`, ready means they all answer their TD, the robots among them have their
+    workspaces (when the tdgen service is one of them), and `http`, if given, lists them;
     without, it means the lab's status key says so. `alive()` names a lab process that died (stop
     waiting at once).
     """
@@ -149,13 +200,15 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                         missing = ["the lab's status"] if status is None else status.things
                     else:
                         missing = missing_tds(client, things)
+                        if not missing and TDGEN_THING in things:
+                            missing = unready_workspaces(client, things)
                         if not missing and http is not None:
                             missing = [f"{t} (over HTTP)" for t in missing_over_http(http, things)]
                         if not missing:
                             return None
                     if time.monotonic() >= deadline:
                         break
-                    if time.monotonic() - said >= 15:
+                    if time.monotonic() - said >= PROGRESS_EVERY:
                         progress(f"still waiting for {', '.join(missing)}")
                         said = time.monotonic()
                     time.sleep(0.2)

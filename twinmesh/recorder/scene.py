@@ -189,6 +189,7 @@ class SceneDrawer:
         self.bodies: dict[str, Body] = {}
         self.sim_time: float | None = None  # the latest simulated time seen
         self._scene: SceneFiles | None = None
+        self._static_bodies: set[str] = set()  # drawn static (the first scene): cleared static too
         self._joints: dict[tuple[str, str], SampleBatch] = {}
         self._poses: dict[str, SampleBatch] = {}  # body name or robot name (its base) -> poses
         self._states: dict[tuple[str, str], Any] = {}
@@ -201,6 +202,7 @@ class SceneDrawer:
         """Draw robots and bodies; a scene equal to the last one drawn is skipped. Returns problems."""
         if files == self._scene:
             return []
+        first = self._scene is None  # the room as it starts: static, there for the whole recording
         old_robots, old_bodies = set(self.robots), set(self.bodies)
         self._scene, self.robots, self.bodies, problems = files, {}, {}, []
         self.rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -210,11 +212,12 @@ class SceneDrawer:
             except Exception as e:  # one bad URDF must not hide the rest of the scene
                 problems.append(f"cannot draw robot {model.name} from {model.urdf}: {e}")
         for body in files.scene.bodies:
-            self._draw_body(body, wall, seq)
+            self._draw_body(body, wall, seq, static=first or body.name in self._static_bodies)
         for gone in old_robots - set(self.robots):
             self.rec.log(robot_path(gone), rr.Clear(recursive=True), static=True)
-        for gone in old_bodies - set(self.bodies):
-            self.rec.log(body_path(gone), rr.Clear(recursive=True), static=True)
+        for gone in old_bodies - set(self.bodies):  # an obstacle removed: gone from then on, not before
+            self.rec.log(body_path(gone), rr.Clear(recursive=True), static=gone in self._static_bodies)
+            self._static_bodies.discard(gone)
         return problems
 
     @property
@@ -227,7 +230,9 @@ class SceneDrawer:
         robot.draw(self.rec, model.base)
         self.robots[model.name] = robot
 
-    def _draw_body(self, body: Body, wall: float, seq: int) -> None:
+    def _draw_body(self, body: Body, wall: float, seq: int, static: bool) -> None:
+        """A body of the first scene is static; one added later (an obstacle) exists from the time it was
+        drawn on, so that scrolling back shows the lab without it."""
         path = body_path(body.name)
         color = [round(min(max(c, 0.0), 1.0) * 255) for c in (*body.color, body.opacity)]
         shape: rr.Boxes3D | rr.Cylinders3D | rr.Ellipsoids3D
@@ -238,13 +243,15 @@ class SceneDrawer:
         else:
             r = body.size[0]
             shape = rr.Ellipsoids3D(half_sizes=[[r, r, r]], colors=[color], fill_mode="solid")
-        self.rec.log(path, shape, static=True)
+        self.rec.log(path, shape, static=static)
         if body.moving:  # a static pose would shadow the poses to come: log it as the first of them
             self._batch_pose(body.name, body.pose, wall, seq)
         else:
             placement = rr.Transform3D(translation=body.pose.p, quaternion=rr.Quaternion(xyzw=body.pose.q))
-            self.rec.log(path, placement, static=True)
+            self.rec.log(path, placement, static=static)
         self.bodies[body.name] = body
+        if static:
+            self._static_bodies.add(body.name)
 
     # --- poses (over time) -----------------------------------------------------------------
     def add_poses(self, poses: Poses, wall: float, seq: int) -> list[Entry]:
