@@ -5,8 +5,9 @@ reply. A synchronous invocation carried by one query that may last as long as a 
 (timeout: the 300 s action timeout) therefore holds memory for 300 s per invoke; `MeshClient.invoke`
 now carries it as an asynchronous invocation whose queries are short long-polls (`?async;sync;wait=2`,
 timeout 2 + 5 s). Each run is a fresh process with its own Zenoh session against one lab
-(`twinmesh up lights --no-http`) invoking `light-left`'s `switchOn` from 8 threads; its RSS growth
-is printed per invoke, baseline (one long query per invoke, as before) and now side by side.
+(`twinmesh up lights`) invoking `light-left`'s `switchOn` from 8 threads; its RSS growth is printed
+per invoke, baseline (one long query per invoke, as before) and now side by side. Then the HTTP
+adapter's own RSS under the same invokes over HTTP (it invokes through MeshClient.invoke).
 
     python tests/bench/bench_invoke_memory.py [--invokes 20000]
 """
@@ -83,13 +84,14 @@ def main() -> None:
         print(json.dumps(phase(args.endpoint, args.phase, args.invokes)))
         return
     with tempfile.TemporaryDirectory() as tmp:
-        lab = start_lab(Path(tmp), "lights", http=False, things={"light-left"})
+        lab = start_lab(Path(tmp), "lights", http=True, things={"light-left"})
         try:
             results = {}
             for mode in ("baseline", "now"):
                 out = subprocess.run([sys.executable, __file__, "--phase", mode, "--endpoint", lab.endpoint,
                                       "--invokes", str(args.invokes)], capture_output=True, text=True, check=True)
                 results[mode] = json.loads(out.stdout.strip().splitlines()[-1])
+            adapter = over_http(lab, args.invokes)
         finally:
             lab.stop()
     print(f"{BATCHES} batches of {args.invokes} synchronous invokes of light-left.switchOn from {THREADS} threads, "
@@ -107,6 +109,45 @@ def main() -> None:
               f"{per[mode]:>7.3f} KB {last:>7.3f} KB")
     ratio = per["now"] / per["baseline"] if per["baseline"] > 0 else float("nan")
     print(f"ratio now / baseline, memory kept per invoke: {ratio:.3f}")
+    rss = adapter["rss_mb"]
+    print(f"\nthe HTTP adapter's process under POST /light-left/actions/switchOn from {THREADS} threads "
+          f"({adapter['invokes'] / adapter['seconds']:.0f} invokes/s): RSS {' -> '.join(f'{v:.1f}' for v in rss)} MB, "
+          f"last batch {(rss[-1] - rss[-2]) * 1024 / args.invokes:.3f} KB per invoke")
+
+
+def over_http(lab, invokes: int) -> dict:
+    """The adapter's RSS (MB) after warm-up and after each batch of synchronous HTTP invokes."""
+    import httpx
+
+    adapter = next(p for p in psutil.Process(lab.proc.pid).children(recursive=True) if "adapter" in " ".join(p.cmdline()))
+    url = f"{lab.http}/light-left/actions/switchOn"
+    clients = [httpx.Client() for _ in range(THREADS)]
+    for _ in range(100):
+        clients[0].post(url).raise_for_status()
+    rss, seconds = [adapter.memory_info().rss / 2**20], 0.0
+    for _ in range(BATCHES):
+        todo = iter(range(invokes))
+        lock = threading.Lock()
+
+        def worker(client: httpx.Client) -> None:
+            while True:
+                with lock:
+                    if next(todo, None) is None:
+                        return
+                client.post(url).raise_for_status()
+
+        started = time.perf_counter()
+        threads = [threading.Thread(target=worker, args=(c,)) for c in clients]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        seconds += time.perf_counter() - started
+        time.sleep(PAUSE)
+        rss.append(adapter.memory_info().rss / 2**20)
+    for c in clients:
+        c.close()
+    return {"invokes": invokes * BATCHES, "seconds": seconds, "rss_mb": rss}
 
 
 if __name__ == "__main__":
