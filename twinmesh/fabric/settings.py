@@ -28,7 +28,6 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     multicast: bool = False
     query_timeout: float = 5.0   # reads, writes, TDs
     action_timeout: float = 300.0  # motions return when done, which can take minutes at speed 1
-    star: bool = True  # peers link to routers only, not to every other peer (see zenoh_config)
 
     @property
     def keys(self) -> Keys:
@@ -44,12 +43,6 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
             conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         if self.connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
-        if self.mode == "peer" and self.star:
-            # Zenoh's default gossip makes every peer link to every other: N devices, N^2/2 links (each
-            # with descriptors and shared-memory segments). Peers that autoconnect to routers only link
-            # once, to their host's router, which routes between them: cost linear in N
-            # (tests/bench/bench_topology.py).
-            conf.insert_json5("scouting/gossip/autoconnect", json.dumps({"router": [], "peer": ["router"]}))
         return conf
 
     def as_router(self, listen: tuple[str, ...] | None = None) -> "MeshSettings":
