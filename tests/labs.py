@@ -11,10 +11,16 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
+
+from twinmesh.fabric.client import MeshClient
+from twinmesh.fabric.session import open_session
+from twinmesh.fabric.settings import MeshSettings
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -156,3 +162,11 @@ def wait_ready(endpoint: str, timeout: float = 60) -> subprocess.CompletedProces
     """`twinmesh wait` against `endpoint`, as a user's script does after `twinmesh up &`."""
     return subprocess.run(twinmesh_cmd(endpoint, "wait", "--timeout", str(timeout)), capture_output=True, text=True,
                           timeout=timeout + 30, cwd=REPO)
+
+
+@contextmanager
+def mesh_client(endpoint: str) -> Iterator[MeshClient]:
+    """A client-mode Zenoh consumer of the lab at `endpoint`, for tests that talk to Things directly."""
+    settings = MeshSettings(mode="client", connect=(endpoint,))
+    with open_session(settings) as session:
+        yield MeshClient(session, settings)

@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 
 import httpx
 import pytest
-from labs import start_robot_lab
+from labs import mesh_client, start_robot_lab
 
 from twinmesh.wot.invocation import Invocations
 from twinmesh.wot.problem import BadInput, Conflict, NotFound
@@ -18,16 +17,6 @@ from twinmesh.wot.problem import BadInput, Conflict, NotFound
 PROBLEM = "application/problem+json"
 JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
 
-
-@contextmanager
-def mesh_client(endpoint: str):
-    from twinmesh.fabric.client import MeshClient
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
-
-    settings = MeshSettings(mode="client", connect=(endpoint,))
-    with open_session(settings) as session:
-        yield MeshClient(session, settings)
 
 
 @pytest.fixture(scope="module")

@@ -13,8 +13,8 @@ import msgspec
 import numpy as np
 import psutil
 import pytest
-from labs import start_lab
-from test_platform_tds import THINGS, mesh_client
+from labs import mesh_client, start_lab
+from test_platform_tds import THINGS
 
 PROBLEM = "application/problem+json"
 

@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import fnmatch
 import json
-from contextlib import contextmanager
-from typing import Any, Iterator
+from typing import Any
 
 import httpx
 import numpy as np
 import pytest
-from labs import start_lab
+from labs import mesh_client, start_lab
 from tdschema import REFERENCE_TDS, assert_valid_td
 
 from twinmesh.messages.relations import MODEL, SCENE
@@ -150,17 +149,6 @@ def lab(tmp_path_factory):
                     extra_args=("--speed", "max"))
     yield lab
     assert lab.stop(), "the lab did not stop cleanly"
-
-
-@contextmanager
-def mesh_client(endpoint: str) -> Iterator["MeshClient"]:  # noqa: F821
-    from twinmesh.fabric.client import MeshClient
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
-
-    settings = MeshSettings(mode="client", connect=(endpoint,))
-    with open_session(settings) as session:
-        yield MeshClient(session, settings)
 
 
 def test_tds_on_zenoh_match_the_real_ones_and_are_valid(lab):

@@ -14,14 +14,13 @@ import json
 import math
 import queue
 import time
-from contextlib import contextmanager
 
 import httpx
 import numpy as np
 import pytest
 import trimesh
 from interop import npm
-from labs import start_robot_lab, stop_process
+from labs import mesh_client, start_robot_lab, stop_process
 from tdschema import assert_valid_td
 
 from twinmesh.messages.relations import MODEL, POINTS, SCENE, TWIN, WORKSPACE
@@ -59,16 +58,6 @@ def wait_generated(lab, name: str, timeout: float = 120.0) -> dict:
         time.sleep(0.05)
     raise AssertionError(f"{name}: no generated TD within {timeout} s (last: {last})\n{lab.log.read_text()[-3000:]}")
 
-
-@contextmanager
-def mesh_client(endpoint: str):
-    from twinmesh.fabric.client import MeshClient
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
-
-    settings = MeshSettings(mode="client", connect=(endpoint,))
-    with open_session(settings) as session:
-        yield MeshClient(session, settings)
 
 
 @pytest.fixture(scope="module")

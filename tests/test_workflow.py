@@ -11,8 +11,8 @@ import subprocess
 import numpy as np
 import pytest
 from interop import npm
-from labs import start_lab
-from test_platform_tds import THINGS, mesh_client
+from labs import mesh_client, start_lab
+from test_platform_tds import THINGS
 
 QUEUE = ["cube-red", "cube-green", "cube-blue", "cube-yellow"]
 RGB = {"cube-red": [219, 31, 26], "cube-green": [31, 168, 56], "cube-blue": [31, 71, 219]}

@@ -83,7 +83,9 @@ class ExposedThing:
         self._values: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=f"thing-{name}")
-        self._runner = ThreadPoolExecutor(max_workers=4, thread_name_prefix=f"async-{name}")
+        # actions run here (synchronous calls are carried as asynchronous ones: MeshClient.invoke), as many
+        # at once as the query workers used to run
+        self._runner = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=f"async-{name}")
         self.invocations = Invocations(self._runner)
         self._declared: list[Any] = []
         self._publishers: dict[str, Any] = {}
