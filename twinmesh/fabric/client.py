@@ -117,7 +117,15 @@ class MeshClient:
         """The action's output once it is over (its problem raised if it failed), within `timeout`
         (default: the settings' action timeout). Carried as an asynchronous invocation with long-poll
         queries of at most `POLL` s each, so that no Zenoh query lives as long as a robot's motion."""
-        payload = None if input is NOTHING else msgspec.json.encode(input)
+        return self._invoke(thing, action, None if input is NOTHING else msgspec.json.encode(input), timeout)
+
+    def invoke_bytes(self, thing: str, action: str, payload: bytes | None, timeout: float | None = None) -> bytes:
+        """`invoke` with the input and the output as JSON bytes (b"" for none): the HTTP adapter's, whose
+        input is already checked and encoded."""
+        out = self._invoke(thing, action, payload, timeout)
+        return b"" if out is None else msgspec.json.encode(out)
+
+    def _invoke(self, thing: str, action: str, payload: bytes | None, timeout: float | None) -> Any:
         timeout = self.settings.action_timeout if timeout is None else timeout
         deadline = time.monotonic() + timeout
         key = self.keys.action(thing, action)
@@ -135,11 +143,6 @@ class MeshClient:
         if status.status != "completed":
             raise Problem.from_json(msgspec.json.encode(status.error or {}))
         return status.output
-
-    def invoke_bytes(self, thing: str, action: str, payload: bytes | None, timeout: float | None = None) -> bytes:
-        """`invoke` with the input and the output as JSON bytes (b"" for none): the HTTP adapter's."""
-        out = self.invoke(thing, action, NOTHING if payload is None else _json(payload), timeout)
-        return b"" if out is None else msgspec.json.encode(out)
 
     # --- asynchronous actions (twinmesh.fabric.server's selectors) ---------------------------------------
     def invoke_async(self, thing: str, action: str, input: Any = NOTHING) -> ActionStatus:
@@ -243,8 +246,12 @@ class ZenohClient:
         self._request(form.href, msgspec.json.encode(value))
 
     def invoke(self, form: Form, input: Any) -> Any:
-        payload = None if input is NOTHING else msgspec.json.encode(input)
-        return _json(self._request(form.href, payload, self.mesh.settings.action_timeout))
+        """Through `MeshClient.invoke` (short long-poll queries), not one query as long as the action."""
+        key = self._target(form.href)[0]
+        parsed = self.mesh.keys.parse(key)
+        if parsed is None or parsed.kind != "actions":
+            raise BadGateway(f"{form.href} is no action's key")
+        return self.mesh.invoke(parsed.thing, parsed.name, input)
 
     def invoke_async(self, form: Form, input: Any) -> ActionStatus:
         return self.mesh.decode_status(self._request(form.href, None if input is NOTHING else msgspec.json.encode(input)))
