@@ -15,7 +15,7 @@ from twinmesh.cli.exits import UNREACHABLE, CommandFailed, usage_exit
 from twinmesh.cli.mesh_client import mesh_client
 from twinmesh.cli.native_output import quiet_pybullet_import, separate_native_stdout
 from twinmesh.fabric.client import NOTHING, MeshClient
-from twinmesh.fabric.settings import DEFAULT_ENDPOINT, MeshSettings
+from twinmesh.fabric.settings import DEFAULT_ENDPOINT, MeshSettings, router_listen
 from twinmesh.lab.supervisor import ProcessSpec, Supervisor, set_title
 from twinmesh.wot.problem import Problem
 
@@ -67,22 +67,26 @@ CONNECT_NOTE = ("The lab: --connect ENDPOINT before the command (twinmesh --conn
 @click.option("--listen", multiple=True, metavar="ENDPOINT", show_envvar=True,
               help="Zenoh endpoint to listen on (repeatable).")
 @click.option("--mode", type=click.Choice(["peer", "client", "router"]), show_envvar=True,
-              help="Zenoh mode [default: peer for devices and services, client for one-shot commands].")
+              help="Zenoh mode [default: client: every process reaches the others through the lab's router; "
+                   "peer: links to every other peer too (the old topology, N²/2 links)].")
 @click.option("--multicast/--no-multicast", default=False, show_default=True, show_envvar=True,
               help="Multicast scouting.")
+@click.option("--shared-memory/--no-shared-memory", default=False, show_default=True, show_envvar=True,
+              help="Zenoh shared memory between the processes of a host (pays for large payloads only; each "
+                   "link then costs segments and descriptors).")
 @click.option("-v", "--verbose", count=True,
               help="More logging (-vv for debug); also shows pybullet's own messages (on stderr).")
 @click.version_option(package_name="twinmesh", message="twinmesh %(version)s")
 @click.pass_context
-def main(ctx: click.Context, prefix, connect, listen, mode, multicast, verbose) -> None:
+def main(ctx: click.Context, prefix, connect, listen, mode, multicast, shared_memory, verbose) -> None:
     """twinmesh: a digital-twin lab for the Web of Things."""
     separate_native_stdout(show=verbose > 0)  # pybullet's C prints never mix into what a command prints
     if not verbose:
         quiet_pybullet_import()
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)],
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    ctx.obj = MeshSettings(prefix=prefix, mode=mode or "peer", connect=tuple(connect) or (DEFAULT_ENDPOINT,),
-                           listen=tuple(listen), multicast=multicast)
+    ctx.obj = MeshSettings(prefix=prefix, mode=mode or "client", connect=tuple(connect) or (DEFAULT_ENDPOINT,),
+                           listen=tuple(listen), multicast=multicast, shared_memory=shared_memory)
 
 
 def _auth(value: str | None) -> str | None:
@@ -129,12 +133,22 @@ READY_TIMEOUT = 600.0  # s `up` waits for every Thing of its scene before it giv
 @click.option("--tdgen-cache", type=click.Path(file_okay=False),
               help="Where the tdgen service caches generated robot TDs [default: $TWINMESH_CACHE/tdgen, "
                    "else ~/.cache/twinmesh/tdgen].")
+@click.option("--fleet", "fleet", type=click.IntRange(min=1, max=100_000), metavar="N",
+              help="The fleet scene's number of virtual devices [default: 100].")
+@click.option("--fleet-first", type=click.IntRange(min=1), default=1, show_default=True, metavar="K",
+              help="The fleet's first station number (devices are named <kind>-<station>): give each host "
+                   "that joins a lab its own range.")
+@click.option("--join", "join", metavar="ENDPOINT",
+              help="Run only the scene's devices, for the lab whose router listens at ENDPOINT (another host's "
+                   "`twinmesh --listen tcp/0.0.0.0:7447 up`): this host's router links to it; no adapter, "
+                   "tdgen, recorder or view here.")
 @click.pass_obj
 def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, http: str, no_http: bool,
        auth: str | None, record: str | None, view: str, no_view: bool, speed: str, samples: int | None,
-       tdgen_cache: str | None) -> None:
+       tdgen_cache: str | None, fleet: int | None, fleet_first: int, join: str | None) -> None:
     """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
 
+    Scenes: iot-lab (default), iot-platform, ur10, lights, fleet (--fleet N virtual devices for load tests).
     Prints one line with the word `ready` once every Thing answers (scripts: `twinmesh wait`).
     Ctrl-C stops it all."""
     from twinmesh.lab.readiness import (
@@ -147,23 +161,30 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
         view_free_or_problem,
         wait_ready,
     )
-    from twinmesh.lab.scenes import DEFAULT_SCENE, scene_specs, scene_things
+    from twinmesh.lab.scenes import DEFAULT_SCENE, FLEET, scene_specs, scene_things
     from twinmesh.recorder.view import view_url as make_view_url
     from twinmesh.things.tdgen import THING as TDGEN_THING
     from twinmesh.things.tdgen import default_cache_dir
 
     scene = scene or DEFAULT_SCENE
+    if scene != FLEET and (fleet is not None or fleet_first != 1):
+        raise usage_exit(f"--fleet and --fleet-first are for the fleet scene (`twinmesh up fleet --fleet N`), "
+                         f"not for {scene!r}")
     try:
-        specs = scene_specs(scene, speed=_speed(speed), samples=samples)
-        things = [TDGEN_THING, *scene_things(scene)]
+        specs = scene_specs(scene, speed=_speed(speed), samples=samples, fleet=fleet, fleet_first=fleet_first)
+        things = scene_things(scene, fleet=fleet, fleet_first=fleet_first)
     except KeyError as e:
         raise usage_exit(str(e.args[0])) from None
     if zenoh_endpoint:
         settings = msgspec.structs.replace(settings, connect=(zenoh_endpoint,))
+    if join:
+        _join_lab(settings, scene, specs, things, join)
+        return
+    things = [TDGEN_THING, *things]
     address = None if no_http else _host_port(http)
     view_address = None if no_view else _host_port(view)
     auth = _auth(auth)
-    listen = list(settings.listen) + [e for e in settings.connect if e not in settings.listen]
+    listen = router_listen(settings.listen, settings.connect)
     view_url, viewer = None, []
     try:
         free_or_problem(listen, address)
@@ -209,6 +230,41 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
         code = sup.run_until_stopped()
         queryable.undeclare()
     sys.exit(code)
+
+
+def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], things: list[str], join: str) -> None:
+    """`up SCENE --join ENDPOINT`: this host's router (listening where this host's devices connect) linked
+    to the lab's router at ENDPOINT, and the scene's devices; ready once the lab sees them all."""
+    from twinmesh.lab.readiness import LabDied, PortTaken, free_or_problem, wait_ready
+
+    listen = router_listen(settings.listen, settings.connect)
+    try:
+        free_or_problem(listen, None)
+    except PortTaken as e:
+        raise click.ClickException(e.detail) from None
+    router = ProcessSpec("router", "twinmesh.fabric.session:run_router_process",
+                         {"listen": listen, "connect": [join]}, role=f"router (joins {join})")
+    local = msgspec.structs.replace(settings, listen=())
+    lab = msgspec.structs.replace(settings, listen=(), connect=(join,))
+    sup = Supervisor(local, [router, *specs])
+    set_title(f"up {scene} --join {join}")
+    sup.start()
+    try:
+        wait_ready(lab, lambda: _lab_client(lab), things, READY_TIMEOUT,
+                   alive=lambda: "stopped" if sup.stop.is_set() else sup.dead(),
+                   progress=lambda text: click.echo(f"twinmesh up: {text}", err=True))
+    except LabDied as e:
+        sup.shutdown()
+        if e.detail == "stopped":
+            sys.exit(0)
+        raise click.ClickException(f"{e.detail} while joining the lab (its log is above); stopped") from None
+    except Problem as e:
+        sup.shutdown()
+        raise click.ClickException(f"{e.detail} (is the lab at {join} running and listening there?); stopped") \
+            from None
+    click.echo(f"twinmesh '{scene}' joined the lab at {join}, ready: {len(things)} Things, this host's router on "
+               f"{', '.join(listen)}  (Ctrl-C to stop)")
+    sys.exit(sup.run_until_stopped())
 
 
 @contextmanager

@@ -36,6 +36,7 @@ from typing import Any, Callable
 import msgspec
 
 from twinmesh.fabric.keys import NAME, Keys, check_name, check_slug
+from twinmesh.fabric.session import direct
 from twinmesh.wot.invocation import ID, Invocations
 from twinmesh.wot.payload import decode_json
 from twinmesh.wot.problem import BadInput, NotAllowed, NotFound, Problem
@@ -53,6 +54,24 @@ JSON_ENCODING = "application/json"
 NO_INPUT = None
 
 
+QUERY_WORKERS = 64   # per process: queries being answered at once (reads, writes, long polls of actions)
+ACTION_WORKERS = 64  # per process: actions running at once (a motion holds one until it is over)
+_shared: tuple[ThreadPoolExecutor, ThreadPoolExecutor] | None = None
+_shared_lock = threading.Lock()
+
+
+def shared_pools() -> tuple[ThreadPoolExecutor, ThreadPoolExecutor]:
+    """The process's query and action workers, shared by all its Things: threads stay bounded (a fleet
+    of 500 Things in a process keeps at most QUERY_WORKERS + ACTION_WORKERS of them, created on
+    demand), not 16 per Thing."""
+    global _shared
+    with _shared_lock:
+        if _shared is None:
+            _shared = (ThreadPoolExecutor(max_workers=QUERY_WORKERS, thread_name_prefix="twinmesh-query"),
+                       ThreadPoolExecutor(max_workers=ACTION_WORKERS, thread_name_prefix="twinmesh-action"))
+        return _shared
+
+
 class ActionCall(msgspec.Struct, omit_defaults=True):
     """Published on `<prefix>/<thing>/actions/<a>` after each invocation, so calls can be recorded."""
 
@@ -66,10 +85,10 @@ class ActionCall(msgspec.Struct, omit_defaults=True):
 class ExposedThing:
     """One Thing on the mesh. Register handlers, then `expose()`; `destroy()` (or `with`) undeclares."""
 
-    def __init__(self, session, td: ThingDescription | dict[str, Any], name: str, keys: Keys | None = None,
-                 workers: int = 8):
+    def __init__(self, session, td: ThingDescription | dict[str, Any], name: str, keys: Keys | None = None):
         """`td` as a model, or as the JSON document itself: then every term of it is served, also those
-        the model does not hold (an extension vocabulary's, say)."""
+        the model does not hold (an extension vocabulary's, say). Queries and actions run on the
+        process's shared workers (`shared_pools`)."""
         self.session = session
         self.name = check_slug(name)
         self.keys = keys or Keys()
@@ -82,10 +101,8 @@ class ExposedThing:
         self._file_lookup: Callable[[str], tuple[bytes, str]] | None = None
         self._values: dict[str, Any] = {}
         self._lock = threading.Lock()
-        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=f"thing-{name}")
-        # actions run here (synchronous calls are carried as asynchronous ones: MeshClient.invoke), as many
-        # at once as the query workers used to run
-        self._runner = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=f"async-{name}")
+        # actions run on the second pool (synchronous calls are carried as asynchronous ones: MeshClient.invoke)
+        self._pool, self._runner = shared_pools()
         self.invocations = Invocations(self._runner)
         self._declared: list[Any] = []
         self._publishers: dict[str, Any] = {}
@@ -188,7 +205,7 @@ class ExposedThing:
         self._td_json = self._served_td()
         k, s = self.keys, self.session
         def serve(key: str, answer: Callable[..., Any], *args: Any, acts: str = "") -> None:
-            self._declared.append(s.declare_queryable(key, self._dispatch(key, acts, answer, *args)))
+            self._declared.append(s.declare_queryable(key, direct(self._dispatch(key, acts, answer, *args))))
 
         serve(k.td(self.name), self._answer_td)
         for p in self.td.properties:
@@ -198,7 +215,7 @@ class ExposedThing:
         for f in self._files:
             serve(k.file(self.name, f), self._answer_file, f)
         if self._file_lookup is not None:
-            self._declared.append(s.declare_queryable(k.file(self.name, "*"), self._any_file))
+            self._declared.append(s.declare_queryable(k.file(self.name, "*"), direct(self._any_file)))
         self._exposed = True
         self._declared.append(s.liveliness().declare_token(k.alive(self.name)))
         return self
@@ -217,9 +234,7 @@ class ExposedThing:
             except Exception:
                 pass
         self._publishers.clear()
-        self._pool.shutdown(wait=False, cancel_futures=True)
         self.invocations.cancel_all()
-        self._runner.shutdown(wait=False, cancel_futures=True)
 
     def __enter__(self) -> "ExposedThing":
         return self.expose()
@@ -247,6 +262,8 @@ class ExposedThing:
         self._pool.submit(self._serve, query, key, "", lambda _payload: lookup(name), ())
 
     def _serve(self, query, key: str, acts: str, answer, args) -> None:
+        if not self._exposed:  # destroyed while the query waited for a worker: the querier times out
+            return
         try:
             payload = query.payload.to_bytes() if query.payload is not None else None
             asked = str(query.key_expr)

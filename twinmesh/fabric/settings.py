@@ -13,19 +13,33 @@ MIN_SPEED, MAX_SPEED = 0.01, 1000.0  # sane simulation speed factors: slower fre
 Mode = Literal["peer", "client", "router"]
 
 
+ROUTER_LEASE_MS = 1500  # a router declares a silent link dead after this long: a cut host's Things leave at once
+ROUTER_MAX_SESSIONS = 100_000  # Zenoh's default (1,000) would cap a host at 1,000 devices
+RETRY_MS = (250, 1000)  # a device reconnects this fast after its router came back (first, longest pause)
+
+
 class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     """How a process joins the mesh.
 
-    Defaults give a closed loopback lab: every peer connects to the lab's router on
+    Defaults give a closed loopback lab: every process connects to the lab's router on
     127.0.0.1:7447 (started by `twinmesh up`) and multicast scouting is off, so a test run never
     meets a neighbour's lab. `listen`/`connect` and `mode="router"` let peers on other hosts join.
+
+    Topology: every device and service is a Zenoh *client* of its host's router (a star: one TCP
+    link and one descriptor per device, whatever the number of devices), not a *peer* (peers link
+    to every other peer: N²/2 links). Shared memory is off unless asked for: the mesh carries small
+    JSON, and each shared-memory link costs segments and descriptors (with it, a router took
+    only 350 local sessions). `wait_for_router`: a lab's parts wait (retrying every 0.25..1 s) for
+    their router, which starts beside them and may restart; one-shot commands fail at once.
     """
 
     prefix: str = "wot"
-    mode: Mode = "peer"
+    mode: Mode = "client"
     connect: tuple[str, ...] = (DEFAULT_ENDPOINT,)
     listen: tuple[str, ...] = ()
     multicast: bool = False
+    shared_memory: bool = False
+    wait_for_router: bool = True
     query_timeout: float = 5.0   # reads, writes, TDs
     action_timeout: float = 300.0  # motions return when done, which can take minutes at speed 1
 
@@ -43,11 +57,38 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
             conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         if self.connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        conf.insert_json5("transport/shared_memory/enabled", json.dumps(self.shared_memory))
+        first, longest = RETRY_MS
+        conf.insert_json5("connect/retry", json.dumps(
+            {"period_init_ms": first, "period_max_ms": longest, "period_increase_factor": 2}))
+        if self.mode == "client" and self.wait_for_router:
+            conf.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": -1}))
+        if self.mode == "router":
+            conf.insert_json5("transport/unicast/max_sessions", json.dumps(ROUTER_MAX_SESSIONS))
+            conf.insert_json5("transport/link/tx/lease", json.dumps(ROUTER_LEASE_MS))
         return conf
 
-    def as_router(self, listen: tuple[str, ...] | None = None) -> "MeshSettings":
-        """The settings of the lab's router: it listens where the peers connect."""
-        return msgspec.structs.replace(self, mode="router", listen=listen or self.connect, connect=())
+    def as_router(self, listen: tuple[str, ...] | None = None, connect: tuple[str, ...] = ()) -> "MeshSettings":
+        """The settings of the lab's router: it listens where the peers connect (and links to the
+        routers at `connect`: one router per host, the routers connected)."""
+        return msgspec.structs.replace(self, mode="router", listen=listen or self.connect, connect=connect)
+
+
+def router_listen(listen: tuple[str, ...], connect: tuple[str, ...]) -> list[str]:
+    """Where a lab's router listens: the `--listen` endpoints, and the endpoints its own processes connect
+    to, unless a wildcard listen endpoint (`tcp/0.0.0.0:7447`) already covers that port."""
+    def split(endpoint: str) -> tuple[str, str, str]:
+        proto, _, rest = endpoint.partition("/")
+        host, _, port = rest.split("#", 1)[0].rpartition(":")
+        return proto, host.strip("[]"), port
+
+    wildcard = {(proto, port) for proto, host, port in map(split, listen) if host in ("0.0.0.0", "::")}
+    out = list(listen)
+    for endpoint in connect:
+        proto, _, port = split(endpoint)
+        if endpoint not in out and (proto, port) not in wildcard:
+            out.append(endpoint)
+    return out
 
 
 def parse_speed(value: str) -> float | None:

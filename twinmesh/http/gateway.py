@@ -31,6 +31,7 @@ from twinmesh.fabric.client import MeshClient, Reply
 from twinmesh.fabric.directory import Directory
 from twinmesh.fabric.keys import NAME as NAME  # the names a key may hold: the routes check them
 from twinmesh.fabric.keys import SLUG as SLUG
+from twinmesh.fabric.session import direct
 from twinmesh.fabric.settings import MeshSettings
 from twinmesh.http.observers import Change, Feed, Observers
 from twinmesh.http.problems import unavailable
@@ -94,7 +95,8 @@ class Registry:
         self._deadline = self._loop.create_future()
         self._limiter = anyio.CapacityLimiter(self.threads)
         session = self.client.session
-        self._declared.append(await self.call(session.declare_subscriber, self.keys.everything(), self._sample))
+        # run on Zenoh's thread (it only hands the sample to the loop): no hop through a thread of its own
+        self._declared.append(await self.call(session.declare_subscriber, self.keys.everything(), direct(self._sample)))
         self._declared.append(await self.call(Directory, session, self.keys, self._joined, self._left))
 
     def begin_shutdown(self) -> None:
@@ -185,6 +187,8 @@ class Registry:
             entry.refetching = True
             entry.fetch = asyncio.ensure_future(self._fetch_td(entry, entry.generation))
             entry.fetch.add_done_callback(lambda done: self._refetched(entry, done))
+            return
+        if entry.td is None:  # not yet checkable, and no misbehaviour: a fleet's sensors publish from the start
             return
         why = self._invalid(entry, kind, name, payload)
         if why is not None:

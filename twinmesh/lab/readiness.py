@@ -118,9 +118,17 @@ def serve_status(session, settings: MeshSettings, status: LabStatus):
 
 
 def missing_tds(client, things: Iterable[str], timeout: float = 1.0) -> list[str]:
-    """The Things among `things` that do not answer their TD now."""
-    missing = []
+    """The Things among `things` that do not answer their TD now. One liveliness query first: a Thing
+    not alive is missing without waiting `timeout` for its TD (a fleet of thousands starts)."""
+    things = list(things)
+    try:
+        alive = set(client.things())
+    except Problem:
+        return things
+    missing = [t for t in things if t not in alive]
     for thing in things:
+        if thing not in alive:
+            continue
         try:
             client.request(client.keys.td(thing), timeout=timeout, thing=thing)
         except Problem:
@@ -182,6 +190,7 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
     """
     deadline = time.monotonic() + timeout
     missing: list[str] = list(things or ["the lab's status"])
+    answered: set[str] = set()  # Things that answered their TD once: not asked again
     said = time.monotonic()
     while True:
         dead = alive()
@@ -199,7 +208,8 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                             return status
                         missing = ["the lab's status"] if status is None else status.things
                     else:
-                        missing = missing_tds(client, things)
+                        missing = missing_tds(client, [t for t in things if t not in answered])
+                        answered.update(t for t in things if t not in missing)
                         if not missing and TDGEN_THING in things:
                             missing = unready_workspaces(client, things)
                         if not missing and http is not None:
@@ -209,7 +219,7 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                     if time.monotonic() >= deadline:
                         break
                     if time.monotonic() - said >= PROGRESS_EVERY:
-                        progress(f"still waiting for {', '.join(missing)}")
+                        progress(f"still waiting for {_some(missing)}")
                         said = time.monotonic()
                     time.sleep(0.2)
         except LabDied:
@@ -219,7 +229,12 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                 raise
             time.sleep(0.3)
             continue
-        raise Unavailable(f"not ready within {timeout:g} s; waiting for {', '.join(missing)}")
+        raise Unavailable(f"not ready within {timeout:g} s; waiting for {_some(missing)}")
+
+
+def _some(names: list[str], show: int = 12) -> str:
+    """`a, b, c` or, for a fleet, `a, b, ... and 988 more`."""
+    return ", ".join(names) if len(names) <= show else f"{', '.join(names[:show])} and {len(names) - show} more"
 
 
 def _status(client, settings: MeshSettings) -> LabStatus | None:

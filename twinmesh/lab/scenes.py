@@ -1,7 +1,16 @@
-"""Scenes: which processes make up a lab. `twinmesh up SCENE` starts exactly these."""
+"""Scenes: which processes make up a lab. `twinmesh up SCENE` starts exactly these.
+
+The `fleet` scene has no fixed list: `--fleet N` virtual devices (`twinmesh.things.fleet`), spread
+over as many processes as the machine has cores.
+"""
 from __future__ import annotations
 
+import os
+
 from twinmesh.lab.supervisor import ProcessSpec
+
+FLEET = "fleet"
+FLEET_TARGET = "twinmesh.things.fleet:run"
 
 SCENES: dict[str, list[ProcessSpec]] = {
     "lights": [ProcessSpec("lights", "twinmesh.things.lights:run", role="lights")],
@@ -30,18 +39,31 @@ SCENE_THINGS: dict[str, list[str]] = {
 }
 
 
-def scene_things(name: str) -> list[str]:
-    """The Things `twinmesh up NAME` serves, in a stable order."""
+def scene_things(name: str, fleet: int | None = None, fleet_first: int = 1) -> list[str]:
+    """The Things `twinmesh up NAME` serves, in a stable order (`fleet`: the fleet scene's size)."""
+    if name == FLEET:
+        from twinmesh.things.fleet import DEFAULT_FLEET, fleet_names
+
+        return fleet_names(fleet or DEFAULT_FLEET, fleet_first)
     if name not in SCENES:
-        raise KeyError(f"unknown scene {name!r}; known scenes: {', '.join(sorted(SCENES))}")
+        raise KeyError(f"unknown scene {name!r}; known scenes: {', '.join(sorted([*SCENES, FLEET]))}")
     return list(SCENE_THINGS[name])
 
 
-def scene_specs(name: str, speed: float | None = 1.0, samples: int | None = None) -> list[ProcessSpec]:
+def scene_specs(name: str, speed: float | None = 1.0, samples: int | None = None, fleet: int | None = None,
+                fleet_first: int = 1, processes: int | None = None) -> list[ProcessSpec]:
     """The processes of a scene; `speed` (None = as fast as possible) goes to every simulated world,
-    `samples` (None = each robot's default) to every robot's workspace sampling."""
+    `samples` (None = each robot's default) to every robot's workspace sampling; the fleet scene's
+    `fleet` devices (stations numbered from `fleet_first`) go to `processes` processes (default: one per core)."""
+    if name == FLEET:
+        from twinmesh.things.fleet import DEFAULT_FLEET, FleetDevice, split
+
+        parts = split(fleet or DEFAULT_FLEET, processes or os.cpu_count() or 1)
+        return [ProcessSpec(f"fleet-{i + 1}", FLEET_TARGET, {"start": lo, "end": hi, "first": fleet_first},
+                            role=f"fleet {FleetDevice(lo, fleet_first).name}..{FleetDevice(hi - 1, fleet_first).name}")
+                for i, (lo, hi) in enumerate(parts)]
     if name not in SCENES:
-        raise KeyError(f"unknown scene {name!r}; known scenes: {', '.join(sorted(SCENES))}")
+        raise KeyError(f"unknown scene {name!r}; known scenes: {', '.join(sorted([*SCENES, FLEET]))}")
     specs = []
     for s in SCENES[name]:
         kwargs = dict(s.kwargs)

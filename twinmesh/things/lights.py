@@ -18,12 +18,12 @@ _CHANNEL = {"type": "number", "minimum": 0, "maximum": 1, "unit": units.UNITLESS
 _COLOR = {"type": "array", "items": _CHANNEL, "minItems": 3, "maxItems": 3}
 
 
-def light_td(name: str) -> ThingDescription:
+def light_td(name: str, description: str | None = None) -> ThingDescription:
     side = name.removeprefix("light-")
     return decode_td({
         "title": name,
         "id": thing_id(name),
-        "description": f"Virtual light on the {side} of the lab's top table (twinmesh twin).",
+        "description": description or f"Virtual light on the {side} of the lab's top table (twinmesh twin).",
         "properties": {
             "lightState": {"title": "Light state", "description": "On (true) or off (false).",
                            "type": "boolean", "observable": True, "readOnly": False, "writeOnly": False},
@@ -51,12 +51,12 @@ class Light:
     """One light's behaviour on an ExposedThing: state-backed properties plus actions and an event."""
 
     def __init__(self, session, name: str, keys: Keys,
-                 on_change: Callable[[bool, list[float]], None] | None = None):
+                 on_change: Callable[[bool, list[float]], None] | None = None, description: str | None = None):
         """`on_change(state, color)` after every change (the iot-lab's lamp shows it in the world)."""
         from twinmesh.fabric.server import ExposedThing
 
         self._on_change = on_change
-        self.thing = ExposedThing(session, light_td(name), name, keys)
+        self.thing = ExposedThing(session, light_td(name, description), name, keys)
         self.thing.state("lightState", False).state("lightColor", [1.0, 1.0, 1.0])
         self.thing.on_write("lightState", self.set_state)
         self.thing.on_write("lightColor", lambda rgb: self.set_color(dict(zip("rgb", rgb))))

@@ -31,7 +31,7 @@ from __future__ import annotations
 import json
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Protocol
 
 import msgspec
 
@@ -71,7 +71,7 @@ def _reference(slug: str) -> dict[str, Any]:
 
 
 @lru_cache(maxsize=None)
-def _twin_td_json(slug: str) -> bytes:
+def twin_td_json(slug: str) -> bytes:
     td = _reference(slug)
     td["id"] = thing_id(slug)
     td["title"] = slug
@@ -98,7 +98,7 @@ def twin_td(slug: str) -> ThingDescription:
     """The TD a platform device serves on the mesh (see the module docstring for the deviations)."""
     if slug not in PLATFORM_DEVICES:
         raise KeyError(f"no iot-platform device {slug!r}")
-    return decode_td(_twin_td_json(slug))
+    return decode_td(twin_td_json(slug))
 
 
 def expose_device(session, slug: str, platform: IotPlatform, keys: Keys | None = None
@@ -131,7 +131,32 @@ def _output_const(thing: ExposedThing, action: str) -> Any:
     return None if out is None or out.const is msgspec.UNSET else out.const
 
 
-def bind_belt(thing: ExposedThing, belt: Belt) -> Cleanup:
+class BeltLike(Protocol):
+    """What a belt binding needs: the lab's `Belt`, or a fleet station's (`twinmesh.sim.stations`)."""
+
+    speed: int
+
+    def start_forward(self) -> str: ...
+    def start_backward(self) -> str: ...
+    def stop(self) -> str: ...
+
+
+class BeamLike(Protocol):
+    @property
+    def object_presence(self) -> bool: ...
+    def on_change(self, callback: Callable[[bool], None]) -> Callable[[], None]: ...
+
+
+class ColourLike(Protocol):
+    @property
+    def color(self) -> list[int]: ...
+    @property
+    def lux(self) -> float: ...
+    @property
+    def temperature(self) -> float: ...
+
+
+def bind_belt(thing: ExposedThing, belt: BeltLike) -> Cleanup:
     def act(start: Callable[[], Any], action: str) -> Callable[[Any], Any]:
         const = _output_const(thing, action)
 
@@ -151,7 +176,7 @@ def bind_belt(thing: ExposedThing, belt: Belt) -> Cleanup:
     return _nothing
 
 
-def bind_infrared(thing: ExposedThing, sensor: InfraredSensor) -> Cleanup:
+def bind_infrared(thing: ExposedThing, sensor: BeamLike) -> Cleanup:
     def changed(present: bool) -> None:  # the world's notifier thread, in order
         thing.emit_property_change("objectPresence", present)
         thing.emit_event("detectedObject", present)
@@ -160,7 +185,7 @@ def bind_infrared(thing: ExposedThing, sensor: InfraredSensor) -> Cleanup:
     return sensor.on_change(changed)
 
 
-def bind_color_sensor(thing: ExposedThing, sensor: ColorSensor) -> Cleanup:
+def bind_color_sensor(thing: ExposedThing, sensor: ColourLike) -> Cleanup:
     thing.on_read("color", lambda: sensor.color)
     thing.on_read("lux", lambda: sensor.lux)
     thing.on_read("temperature", lambda: sensor.temperature)

@@ -19,11 +19,12 @@ MILLISECOND = "qudt:MilliSEC"
 PERCENT = "qudt:PERCENT"
 LUX = "qudt:LUX"
 KELVIN = "qudt:K"
+CELSIUS = "qudt:DEG_C"
 UNITLESS = "qudt:UNITLESS"  # a ratio or a normalised value (0..1 colour channels, probabilities, speed factors)
 NUMBER = "qudt:NUM"         # a count
 
 SYMBOLS = {DEGREE: "deg", DEGREE_PER_SECOND: "deg/s", MILLIMETRE: "mm", MILLIMETRE_PER_MINUTE: "mm/min",
-           METRE: "m", SECOND: "s", MILLISECOND: "ms", PERCENT: "%", LUX: "lx", KELVIN: "K", UNITLESS: "",
+           METRE: "m", SECOND: "s", MILLISECOND: "ms", PERCENT: "%", LUX: "lx", KELVIN: "K", CELSIUS: "°C", UNITLESS: "",
            NUMBER: ""}
 
 

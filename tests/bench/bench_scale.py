@@ -1,0 +1,252 @@
+"""The mesh at scale: `twinmesh up fleet --fleet N` for N = 10, 100, 1,000 (10,000 with --large).
+
+Two topologies, measured in the same run:
+- **star** (now): every device and service a Zenoh client of the host's router, no shared memory;
+- **mesh** (the baseline, the old topology): every process a Zenoh peer (each links to every other
+  peer), shared memory on (`twinmesh --mode peer --shared-memory up fleet`). It is run up to the
+  first N where it fails; larger N are not tried.
+
+For each: start-up time until the `ready` line; RSS, descriptors and threads of the fleet
+processes (per process and per device) and of the whole lab; idle CPU of the whole lab over
+10 s (the climate sensors publish every second); `/things?limit=100` latency; readproperty
+p50/p99 to random devices over HTTP and over Zenoh; property-change fan-out to 10 SSE observers.
+
+    python tests/bench/bench_scale.py [--sizes 10,100,1000] [--large] [--only star]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import psutil
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs
+
+from labs import free_port, stop_process, twinmesh_cmd  # noqa: E402
+
+TOPOLOGIES = {"star": [], "mesh": ["--mode", "peer", "--shared-memory"]}
+READY_LIMIT = 240.0  # s a fleet may take to be ready before the size counts as failed
+IDLE_WINDOW = 10.0   # s of idle CPU measurement
+READS = 400
+OBSERVERS, CHANGES = 10, 20
+
+
+def _pct(values: list[float], q: float) -> float:
+    values = sorted(values)
+    return values[min(len(values) - 1, int(q * len(values)))]
+
+
+def _lab_processes(root: psutil.Process) -> list[psutil.Process]:
+    return [root, *root.children(recursive=True)]
+
+
+def _figures(procs: list[psutil.Process]) -> dict:
+    rss = fds = threads = 0
+    fleet = []
+    for p in procs:
+        try:
+            m, f, t = p.memory_info().rss, p.num_fds(), p.num_threads()
+            title = " ".join(p.cmdline())
+        except psutil.Error:
+            continue
+        rss, fds, threads = rss + m, fds + f, threads + t
+        if title.startswith("twinmesh: fleet "):
+            fleet.append((m, f, t))
+    return {"rss": rss, "fds": fds, "threads": threads, "fleet": fleet}
+
+
+def _idle_cpu(procs: list[psutil.Process]) -> float:
+    """Share of one core the whole lab uses over IDLE_WINDOW (%)."""
+    def cpu() -> float:
+        total = 0.0
+        for p in procs:
+            try:
+                t = p.cpu_times()
+                total += t.user + t.system
+            except psutil.Error:
+                pass
+        return total
+    a = cpu()
+    time.sleep(IDLE_WINDOW)
+    return (cpu() - a) / IDLE_WINDOW * 100
+
+
+def _http_reads(base: str, devices: list[str]) -> list[float]:
+    targets = {"belt": "speed", "infrared": "objectPresence", "color": "lux", "light": "lightState",
+               "climate": "humidity"}
+    out = []
+    with httpx.Client(timeout=10) as c:
+        for _ in range(READS):
+            d = random.choice(devices)
+            t = time.perf_counter()
+            r = c.get(f"{base}/{d}/properties/{targets[d.split('-')[0]]}")
+            out.append((time.perf_counter() - t) * 1000)
+            assert r.status_code == 200, r.text
+    return out
+
+
+def _zenoh_reads(endpoint: str, devices: list[str]) -> list[float]:
+    code = f"""
+import json, random, time
+from twinmesh.fabric.client import MeshClient
+from twinmesh.fabric.session import one_shot_session
+from twinmesh.fabric.settings import MeshSettings
+targets = {{"belt": "speed", "infrared": "objectPresence", "color": "lux", "light": "lightState", "climate": "humidity"}}
+devices = {devices!r}
+s = MeshSettings(connect=({endpoint!r},))
+with one_shot_session(s) as session:
+    c = MeshClient(session, s)
+    for d in devices[:20]:
+        c.read(d, targets[d.split('-')[0]])
+    out = []
+    for _ in range({READS}):
+        d = random.choice(devices)
+        t = time.perf_counter(); c.read(d, targets[d.split('-')[0]]); out.append((time.perf_counter() - t) * 1000)
+print(json.dumps(out))
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    if r.returncode != 0:
+        raise RuntimeError(r.stderr[-500:])
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def _fan_out(base: str, light: str) -> list[float]:
+    """ms from each PUT of lightState to its arrival at each of OBSERVERS SSE observers."""
+    arrivals: list[list[tuple[float, bool]]] = [[] for _ in range(OBSERVERS)]
+    ready = threading.Barrier(OBSERVERS + 1)
+
+    def observe(i: int) -> None:
+        with httpx.stream("GET", f"{base}/{light}/properties/lightState/sse", timeout=60) as r:
+            ready.wait()
+            for line in r.iter_lines():
+                if line.startswith("data:"):
+                    arrivals[i].append((time.perf_counter(), json.loads(line[5:])))
+                    if len(arrivals[i]) >= CHANGES:
+                        return
+    threads = [threading.Thread(target=observe, args=(i,), daemon=True) for i in range(OBSERVERS)]
+    for t in threads:
+        t.start()
+    ready.wait()
+    time.sleep(0.5)
+    sent = []
+    with httpx.Client(timeout=10) as c:
+        for k in range(CHANGES):
+            sent.append(time.perf_counter())
+            c.put(f"{base}/{light}/properties/lightState", json=k % 2 == 0)
+            time.sleep(0.1)
+    for t in threads:
+        t.join(10)
+    return [(got[k][0] - sent[k]) * 1000 for got in arrivals for k in range(min(len(got), CHANGES))]
+
+
+def measure(topology: str, n: int, tmp: Path) -> dict:
+    endpoint, port = f"tcp/127.0.0.1:{free_port()}", free_port()
+    base = f"http://127.0.0.1:{port}"
+    log = tmp / f"{topology}-{n}.log"
+    cmd = twinmesh_cmd(endpoint, *TOPOLOGIES[topology], "up", "fleet", "--fleet", str(n),
+                       "--http", f"127.0.0.1:{port}", "--no-view")
+    started = time.monotonic()
+    proc = subprocess.Popen(cmd, stdout=open(log, "wb"), stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        while time.monotonic() - started < READY_LIMIT:
+            text = log.read_text(errors="replace")
+            if re.search(r"ready: \d+ Things", text):
+                break
+            if proc.poll() is not None:
+                lines = text.strip().splitlines() or ["exited"]
+                causes = [line for line in lines if re.search(r"OS error|Too many|ZError|Unable to", line)]
+                return {"failed": (causes or lines)[0][-160:].replace("|", "/")}
+            time.sleep(0.2)
+        else:
+            return {"failed": f"not ready within {READY_LIMIT:.0f} s"}
+        ready_s = time.monotonic() - started
+        time.sleep(3)
+        procs = _lab_processes(psutil.Process(proc.pid))
+        figures = _figures(procs)
+        idle = _idle_cpu(procs)
+        from twinmesh.things.fleet import fleet_names
+
+        devices = fleet_names(n)
+        with httpx.Client(timeout=30) as c:
+            c.get(f"{base}/things?limit=100")
+            things_ms = []
+            for _ in range(10):
+                t = time.perf_counter()
+                assert c.get(f"{base}/things?limit=100").status_code == 200
+                things_ms.append((time.perf_counter() - t) * 1000)
+        http = _http_reads(base, devices)
+        zen = _zenoh_reads(endpoint, devices)
+        lights = [d for d in devices if d.startswith("light-")]
+        fan = _fan_out(base, lights[0]) if lights else []
+        return {"ready": ready_s, **figures, "idle": idle, "things": statistics.median(things_ms),
+                "http": (_pct(http, 0.5), _pct(http, 0.99)), "zenoh": (_pct(zen, 0.5), _pct(zen, 0.99)),
+                "fan": (_pct(fan, 0.5), _pct(fan, 0.99), len(fan))}
+    finally:
+        stop_process(proc, 30)
+
+
+def row(topology: str, n: int, r: dict) -> str:
+    if "failed" in r:
+        return f"| {topology} | {n:,} | fails: {r['failed']} |" + " |" * 9
+    fleet = r["fleet"]
+    per_rss = sum(m for m, _, _ in fleet) / 2**20
+    per_fds = sum(f for _, f, _ in fleet)
+    per_thr = sum(t for _, _, t in fleet)
+    return (f"| {topology} | {n:,} | {r['ready']:.1f} s | {per_rss:.0f} MB / {per_fds:,} / {per_thr} "
+            f"({len(fleet)} proc.) | {r['rss'] / 2**20:.0f} MB / {r['fds']:,} / {r['threads']} | {r['idle']:.1f} % | "
+            f"{r['things']:.1f} ms | {r['http'][0]:.2f} / {r['http'][1]:.2f} ms | "
+            f"{r['zenoh'][0]:.2f} / {r['zenoh'][1]:.2f} ms | {r['fan'][0]:.1f} / {r['fan'][1]:.1f} ms ({r['fan'][2]}) |")
+
+
+HEADER = ("| topology | devices | ready | fleet processes: RSS / fds / threads | whole lab: RSS / fds / threads | "
+          "idle CPU (one core) | /things first page | HTTP read p50 / p99 | Zenoh read p50 / p99 | "
+          f"fan-out to {OBSERVERS} p50 / p99 (deliveries) |\n|" + "---|" * 10)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", default="10,100,1000")
+    ap.add_argument("--large", action="store_true", help="also 10,000 devices")
+    ap.add_argument("--only", choices=sorted(TOPOLOGIES))
+    args = ap.parse_args()
+    sizes = [int(s) for s in args.sizes.split(",")] + ([10_000] if args.large else [])
+    results: dict[str, dict[int, dict]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for topology in [args.only] if args.only else list(TOPOLOGIES):
+            results[topology] = {}
+            for n in sizes:
+                r = measure(topology, n, Path(tmp))
+                results[topology][n] = r
+                print(row(topology, n, r), flush=True)
+                if "failed" in r:
+                    break
+    print(f"\nmachine: {os.cpu_count()} cores; per-device cost beyond a process's fixed cost (star, between the two "
+          "largest sizes):")
+    star = results.get("star", {})
+    ok = [n for n in sizes if n in star and "failed" not in star[n]]
+    if len(ok) >= 2:
+        a, b = star[ok[-2]], star[ok[-1]]
+        dn = ok[-1] - ok[-2]
+        rss = (sum(m for m, _, _ in b["fleet"]) - sum(m for m, _, _ in a["fleet"])) / dn / 2**20
+        fds = (sum(f for _, f, _ in b["fleet"]) - sum(f for _, f, _ in a["fleet"])) / dn
+        print(f"  {rss * 1024:.0f} KiB RSS and {fds:.2f} descriptors per device ({ok[-2]:,} -> {ok[-1]:,})")
+    print()
+    print(HEADER)
+    for topology, by_n in results.items():
+        for n, r in by_n.items():
+            print(row(topology, n, r))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,126 @@
+"""One lab across hosts: Linux network namespaces joined by a bridge, a lab on the first, `up --join` on others.
+
+Each host runs its own router (`up SCENE --join ENDPOINT` links it to the lab's), as Zenoh is
+deployed: one router per host, the routers connected. Skipped, with the reason, where network
+namespaces cannot be created (they need root).
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests import netns
+from twinmesh.things.fleet import fleet_names
+
+WHY_NOT = netns.unavailable()
+pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=f"network namespaces: {WHY_NOT}"),
+              pytest.mark.timeout(600)]
+
+TWINMESH = [sys.executable, "-m", "twinmesh"]
+HANG = 60.0  # s: only detects a hang; how fast a cut is seen is printed here and measured in tests/bench
+
+
+def _listed(base: str) -> set[str]:
+    try:
+        return {u.rstrip("/").rsplit("/", 1)[-1] for u in httpx.get(base + "/", timeout=5).json()}
+    except (httpx.HTTPError, ValueError):
+        return set()
+
+
+def _until(what: str, check, log: Path | None = None, timeout: float = HANG) -> float:
+    """Seconds until `check()` holds (an AssertionError naming `what` after `timeout`)."""
+    start = time.monotonic()
+    while time.monotonic() - start < timeout:
+        if check():
+            return time.monotonic() - start
+        time.sleep(0.1)
+    raise AssertionError(f"{what} not within {timeout:.0f} s" + (f"\n{log.read_text()[-3000:]}" if log else ""))
+
+
+def _lab(host: netns.Host, tmp: Path, *args: str) -> tuple[str, str, Path]:
+    """`twinmesh up` on `host`, its router and adapter on the host's address; (endpoint, base URL, log)."""
+    endpoint, base = f"tcp/{host.address}:7447", f"http://{host.address}:8080"
+    log = tmp / f"{host.name}-lab.log"
+    host.popen([*TWINMESH, "--connect", endpoint, "up", *args, "--http", f"{host.address}:8080", "--no-view"], log)
+    return endpoint, base, log
+
+
+def _ready(log: Path, what: str) -> None:
+    _until(f"{what} ready", lambda: " ready" in log.read_text(errors="replace"), log, timeout=300)
+
+
+def test_a_second_host_joins_a_lab_its_things_are_driven_from_the_first_and_a_cut_link_is_seen(tmp_path):
+    with netns.hosts(2) as net:
+        a, b = net.hosts
+        endpoint, base, lab_log = _lab(a, tmp_path, "fleet", "--fleet", "5")
+        _ready(lab_log, "the lab on host A")
+        join_log = tmp_path / "b-lights.log"
+        joined = b.popen([*TWINMESH, "up", "lights", "--join", endpoint], join_log)
+        robot_log = tmp_path / "b-robot.log"
+        b.popen([*TWINMESH, "robot", "ur10.urdf", "--name", "ur10", "--samples", "300", "--speed", "max"], robot_log)
+        _ready(join_log, "`up lights --join` on host B")
+        assert "no adapter" not in join_log.read_text()
+        _until("B's lights and robot listed by A's adapter",
+               lambda: {"light-left", "light-right", "ur10", *fleet_names(5)} <= _listed(base), robot_log)
+
+        # A's adapter drives B's Things: a light, the robot's joints
+        assert httpx.put(f"{base}/light-left/properties/lightState", json=True, timeout=10).status_code == 204
+        assert httpx.get(f"{base}/light-left/properties/lightState", timeout=10).json() is True
+        joints = httpx.get(f"{base}/ur10/properties/getJointposition", timeout=10)
+        assert joints.status_code == 200, joints.text
+        # no second router, adapter or tdgen on B: one router, the lights
+        ps = b.run(["ps", "-o", "args=", "--ppid", str(joined.pid)]).stdout
+        titles = sorted(line.split(":", 1)[1].strip().split()[0] for line in ps.splitlines() if line.startswith("twinmesh:"))
+        assert titles == ["lights", "router"], ps
+
+        net.cut(b)
+        gone = _until("503 for B's light after the cut",
+                      lambda: httpx.get(f"{base}/light-left/properties/lightState", timeout=10).status_code == 503)
+        assert "light-left" not in _listed(base)
+        assert set(fleet_names(5)) <= _listed(base)  # A's own Things keep serving
+        assert httpx.get(f"{base}/light-1/properties/lightState", timeout=10).status_code == 200
+        net.plug(b)
+        back = _until("B's light back after the link returned",
+                      lambda: httpx.get(f"{base}/light-left/properties/lightState", timeout=10).status_code == 200)
+        assert httpx.get(f"{base}/light-left/properties/lightState", timeout=10).json() is True  # its state kept
+        print(f"cut link: 503 after {gone:.2f} s; link back: served again after {back:.2f} s")
+
+
+def test_four_hosts_make_one_fleet_that_joins_and_leaves_cleanly(tmp_path):
+    per_host = 50
+    with netns.hosts(4) as net:
+        first, *others = net.hosts
+        endpoint, base, lab_log = _lab(first, tmp_path, "fleet", "--fleet", str(per_host))
+        _ready(lab_log, "the lab on host 1")
+        logs, procs = [], []
+        for i, host in enumerate(others, start=1):
+            log = tmp_path / f"{host.name}-fleet.log"
+            procs.append(host.popen([*TWINMESH, "up", "fleet", "--fleet", str(per_host), "--fleet-first",
+                                     str(1 + i * per_host // 5), "--join", endpoint], log))
+            logs.append(log)
+        for log in logs:
+            _ready(log, "a joining fleet")
+        everyone = {n for i in range(4) for n in fleet_names(per_host, 1 + i * per_host // 5)}
+        assert len(everyone) == 4 * per_host
+        _until("all 200 devices listed by the first host's adapter", lambda: everyone <= _listed(base), lab_log)
+        r = httpx.get(f"{base}/things?limit=50", timeout=30)
+        assert r.status_code == 200 and 'rel="next"' in r.headers["link"]
+        # a device of the last host answers through the first host's adapter
+        last = fleet_names(per_host, 1 + 3 * per_host // 5)
+        assert httpx.get(f"{base}/{last[-1]}/properties/humidity", timeout=10).status_code == 200
+
+        # one host leaves (Ctrl-C): its devices leave the directory, the others stay
+        from tests.labs import stop_process
+
+        assert stop_process(procs[1], 30), "a joined fleet did not stop on Ctrl-C"
+        assert procs[1].returncode == 0
+        leaving = set(fleet_names(per_host, 1 + 2 * per_host // 5))
+        _until("the leaving host's devices gone from the directory", lambda: not leaving & _listed(base))
+        assert everyone - leaving <= _listed(base)
+        for p in (procs[0], procs[2]):
+            assert stop_process(p, 30) and p.returncode == 0
+        _until("only the first host's devices left", lambda: _listed(base) - {"tdgen"} == set(fleet_names(per_host)))
