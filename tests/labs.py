@@ -45,16 +45,17 @@ class Lab:
     log: Path
     extra: list[subprocess.Popen] = field(default_factory=list)
     tmp: Path | None = None  # where a test keeps the lab's logs and its robots'
+    options: tuple[str, ...] = ()  # global options every command of this lab takes (`--secrets DIR`)
 
     def cli(self, *args: str, timeout: float = 60, check: bool = False) -> subprocess.CompletedProcess:
         """Run a one-shot `twinmesh` command against this lab."""
-        return subprocess.run(twinmesh_cmd(self.endpoint, *args), capture_output=True, text=True,
+        return subprocess.run(twinmesh_cmd(self.endpoint, *self.options, *args), capture_output=True, text=True,
                               timeout=timeout, check=check, cwd=REPO)
 
     def spawn(self, *args: str, log: Path | None = None) -> subprocess.Popen:
         """Start another long-running twinmesh process (a device, a recorder) on this lab's mesh."""
         out = open(log, "wb") if log else subprocess.DEVNULL
-        p = subprocess.Popen(twinmesh_cmd(self.endpoint, *args), stdout=out, stderr=subprocess.STDOUT,
+        p = subprocess.Popen(twinmesh_cmd(self.endpoint, *self.options, *args), stdout=out, stderr=subprocess.STDOUT,
                              cwd=REPO, start_new_session=True)
         self.extra.append(p)
         return p
@@ -116,7 +117,7 @@ def stop_process(p: subprocess.Popen, timeout: float = 15.0) -> bool:
 
 
 def start_lab(tmp: Path, scene: str | None = "lights", http: bool = True, things: set[str] | None = None,
-              extra_args: tuple[str, ...] = (), view: bool = False) -> Lab:
+              extra_args: tuple[str, ...] = (), view: bool = False, options: tuple[str, ...] = ()) -> Lab:
     """Start `twinmesh up SCENE` (None: `twinmesh up`, the default scene) on free ports and wait until it serves.
     The live 3D view only when asked (`view`: on a free port; its URL is in the lab's ready line)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -124,9 +125,9 @@ def start_lab(tmp: Path, scene: str | None = "lights", http: bool = True, things
     args = ["up", *([scene] if scene else []), *extra_args] + (["--http", f"127.0.0.1:{port}"] if http else ["--no-http"])
     args += ["--view", f"127.0.0.1:{free_port()}"] if view else ["--no-view"]
     log = tmp / f"lab-{scene or 'default'}.log"
-    proc = subprocess.Popen(twinmesh_cmd(endpoint, *args), stdout=open(log, "wb"), stderr=subprocess.STDOUT,
+    proc = subprocess.Popen(twinmesh_cmd(endpoint, *options, *args), stdout=open(log, "wb"), stderr=subprocess.STDOUT,
                             cwd=REPO, start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    lab = Lab(endpoint, f"http://127.0.0.1:{port}" if http else None, proc, log)
+    lab = Lab(endpoint, f"http://127.0.0.1:{port}" if http else None, proc, log, options=options)
     try:
         ready = lab.cli("wait", "--timeout", "300", timeout=330)  # what a user's script does
         assert ready.returncode == 0, f"{ready.stderr}\n--- lab log ---\n{log.read_text()[-4000:]}"

@@ -17,7 +17,9 @@ def lab(tmp_path_factory):
 
 
 def test_things_lists_both_lights_and_the_td_generator(lab):
-    assert lab.cli("things").stdout.split() == ["light-left", "light-right", "tdgen"]  # `up` always starts tdgen
+    streamed = lab.cli("things").stdout.split()  # as the answers arrive
+    assert sorted(streamed) == ["light-left", "light-right", "tdgen"]  # `up` always starts tdgen
+    assert lab.cli("things", "--sort").stdout.split() == ["light-left", "light-right", "tdgen"]
 
 
 def test_switch_on_then_read_shows_on(lab):

@@ -124,3 +124,45 @@ def test_four_hosts_make_one_fleet_that_joins_and_leaves_cleanly(tmp_path):
         for p in (procs[0], procs[2]):
             assert stop_process(p, 30) and p.returncode == 0
         _until("only the first host's devices left", lambda: _listed(base) - {"tdgen"} == set(fleet_names(per_host)))
+
+
+def test_a_secure_lab_across_two_hosts_admits_only_holders_of_its_secrets(tmp_path):
+    import shutil
+
+    secrets_a, secrets_b = tmp_path / "secrets-a", tmp_path / "secrets-b"
+    with netns.hosts(2) as net:
+        a, b = net.hosts
+        endpoint, base, lab_log = f"tcp/{a.address}:7447", f"http://{a.address}:8080", tmp_path / "a.log"
+        a.popen([*TWINMESH, "--secrets", str(secrets_a), "--connect", endpoint, "up", "fleet", "--fleet", "5",
+                 "--http", f"{a.address}:8080", "--no-view"], lab_log)
+        _ready(lab_log, "the secure lab on host A")
+        assert f"on Zenoh tls/{a.address}:7447" in lab_log.read_text()
+        shutil.copytree(secrets_a, secrets_b)  # what an engineer copies to the second host
+        join_log = tmp_path / "b.log"
+        b.popen([*TWINMESH, "--secrets", str(secrets_b), "up", "lights", "--join", endpoint], join_log)
+        _ready(join_log, "the secure join on host B")
+        _until("B's lights listed by A's adapter", lambda: {"light-left", "light-right"} <= _listed(base), join_log)
+        token = {"Authorization": f"Bearer {(secrets_a / 'http-token').read_text().strip()}"}
+        assert httpx.put(f"{base}/light-left/properties/lightState", json=True, headers=token).status_code == 204
+        assert httpx.get(f"{base}/light-left/properties/lightState", headers=token).json() is True
+        assert httpx.get(f"{base}/light-left/properties/lightState").status_code == 401
+
+        # a peer without the lab's secrets, on host B, reaches neither router
+        stranger = tmp_path / "stranger.py"
+        stranger.write_text(f"""
+import json, zenoh
+for endpoint in ("{endpoint}", "tls/{a.address}:7447", "tls/127.0.0.1:7447"):
+    c = zenoh.Config()
+    c.insert_json5("mode", '"client"')
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    c.insert_json5("transport/link/tls", json.dumps({{"root_ca_certificate": "{secrets_a / 'ca.pem'}"}}))
+    try:
+        zenoh.open(c)
+        print("CONNECTED", endpoint)
+    except zenoh.ZError:
+        print("refused", endpoint)
+""")
+        out = b.run([sys.executable, str(stranger)]).stdout
+        assert out.count("refused") == 3 and "CONNECTED" not in out, out
+        assert httpx.get(f"{base}/light-left/properties/lightState", headers=token).json() is True

@@ -1,8 +1,9 @@
 """A crashed part of a lab is started again while the rest keep serving; one that keeps crashing stops the lab.
 
 A real `twinmesh up lights`: the lights' process is killed with SIGKILL (found in `ps` by its title,
-`twinmesh: lights`), its Things leave and come back, and the adapter, router and tdgen keep their
-processes. Killed five times within a minute, the lab stops and says why.
+`twinmesh: lights`), its Things leave and come back (in the scene's initial state), and the adapter,
+router and tdgen keep their processes; then every part in turn (tdgen, recorder, adapter, lights,
+router). Killed five times within a minute, the lab stops and says why.
 """
 from __future__ import annotations
 
@@ -92,3 +93,52 @@ def test_a_killed_router_is_started_again_and_one_shot_commands_find_the_lab(lab
     assert httpx.put(f"{lab.http}/light-left/properties/lightState", json=True).status_code == 204
     assert lab.cli("read", "light-left", "lightState").stdout.strip() == "true"
     assert "process router exited (code -9); starting it again" in lab.log.read_text()
+
+
+def _child_titled(lab, title: str, not_pid: int | None = None, timeout: float = 30) -> psutil.Process:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for child in psutil.Process(lab.proc.pid).children():
+            try:
+                if child.pid != not_pid and child.status() != psutil.STATUS_ZOMBIE and \
+                        " ".join(child.cmdline()).startswith(f"twinmesh: {title}"):
+                    return child
+            except psutil.Error:
+                continue
+        time.sleep(0.1)
+    raise AssertionError(f"no `twinmesh: {title}` process under the lab\n{lab.log.read_text()[-3000:]}")
+
+
+@pytest.fixture
+def recorded_lab(tmp_path):
+    lab = start_lab(tmp_path, "lights", things={"light-left", "light-right", "tdgen"},
+                    extra_args=("--record", str(tmp_path / "lab.rrd")))
+    yield lab
+    lab.stop()
+
+
+def test_each_part_killed_in_turn_comes_back_and_the_others_keep_their_processes(recorded_lab):
+    lab = recorded_lab
+    for title in ("tdgen", "recorder", "adapter", "lights", "router"):
+        victim = _child_titled(lab, title)
+        others = {p.pid for p in psutil.Process(lab.proc.pid).children()} - {victim.pid}
+        os.kill(victim.pid, signal.SIGKILL)
+        _child_titled(lab, title, not_pid=victim.pid)  # started again
+        deadline = time.monotonic() + 30
+        while not (_reads(lab) and {"tdgen", "light-left", "light-right"} <= set(lab.cli("things").stdout.split())):
+            assert time.monotonic() < deadline, f"{title}: the lab did not recover\n{lab.log.read_text()[-3000:]}"
+            time.sleep(0.2)
+        assert others <= {p.pid for p in psutil.Process(lab.proc.pid).children()}, f"{title}: others were replaced"
+        assert f"process {title} exited (code -9); starting it again" in lab.log.read_text()
+    assert lab.proc.poll() is None
+
+
+def test_a_restarted_device_process_starts_from_its_scenes_initial_state(lab):
+    assert httpx.put(f"{lab.http}/light-left/properties/lightState", json=True).status_code == 204
+    victim = _lights_process(lab)
+    os.kill(victim.pid, signal.SIGKILL)
+    deadline = time.monotonic() + 30
+    while not _reads(lab):
+        assert time.monotonic() < deadline, lab.log.read_text()[-3000:]
+        time.sleep(0.1)
+    assert httpx.get(f"{lab.http}/light-left/properties/lightState").json() is False  # the scene's initial state

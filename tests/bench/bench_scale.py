@@ -11,7 +11,10 @@ processes (per process and per device) and of the whole lab; idle CPU of the who
 10 s (the climate sensors publish every second); `/things?limit=100` latency; readproperty
 p50/p99 to random devices over HTTP and over Zenoh; property-change fan-out to 10 SSE observers.
 
-    python tests/bench/bench_scale.py [--sizes 10,100,1000] [--large] [--only star]
+    python tests/bench/bench_scale.py [--sizes 10,100,1000] [--large] [--only star] [--hosts 10]
+
+With `--hosts H` (root: Linux network namespaces, tests/netns.py) each fleet is spread over H hosts:
+the lab and its adapter on the first, `up fleet --join` on the others; figures sum all hosts.
 """
 from __future__ import annotations
 
@@ -32,6 +35,7 @@ import httpx
 import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository: tests.netns
 
 from labs import free_port, stop_process, twinmesh_cmd  # noqa: E402
 
@@ -150,34 +154,79 @@ def _fan_out(base: str, light: str) -> list[float]:
     return [(got[k][0] - sent[k]) * 1000 for got in arrivals for k in range(min(len(got), CHANGES))]
 
 
-def measure(topology: str, n: int, tmp: Path) -> dict:
-    endpoint, port = f"tcp/127.0.0.1:{free_port()}", free_port()
-    base = f"http://127.0.0.1:{port}"
-    log = tmp / f"{topology}-{n}.log"
-    cmd = twinmesh_cmd(endpoint, *TOPOLOGIES[topology], "up", "fleet", "--fleet", str(n),
-                       "--http", f"127.0.0.1:{port}", "--no-view")
-    started = time.monotonic()
-    proc = subprocess.Popen(cmd, stdout=open(log, "wb"), stderr=subprocess.STDOUT, start_new_session=True)
-    try:
-        while time.monotonic() - started < READY_LIMIT:
-            text = log.read_text(errors="replace")
-            if re.search(r"ready: \d+ Things", text):
-                break
-            if proc.poll() is not None:
-                lines = text.strip().splitlines() or ["exited"]
-                causes = [line for line in lines if re.search(r"OS error|Too many|ZError|Unable to", line)]
-                return {"failed": (causes or lines)[0][-160:].replace("|", "/")}
-            time.sleep(0.2)
+def _failure(text: str) -> str:
+    lines = text.strip().splitlines() or ["exited"]
+    causes = [line for line in lines if re.search(r"OS error|Too many|ZError|Unable to", line)]
+    return (causes or lines)[0][-160:].replace("|", "/")
+
+
+def _wait_line(log: Path, proc: subprocess.Popen, pattern: str, started: float) -> str | None:
+    """None once `pattern` is in the log; otherwise why not (the process ended, or READY_LIMIT passed)."""
+    while time.monotonic() - started < READY_LIMIT:
+        text = log.read_text(errors="replace")
+        if re.search(pattern, text):
+            return None
+        if proc.poll() is not None:
+            return _failure(text)
+        time.sleep(0.2)
+    return f"not ready within {READY_LIMIT:.0f} s"
+
+
+def measure(topology: str, n: int, tmp: Path, hosts: int = 1) -> dict:
+    """One fleet of `n` devices; with `hosts` > 1, spread over that many network namespaces: the lab (and
+    its adapter) on the first, `up fleet --join` on the others."""
+    from contextlib import ExitStack
+
+    from twinmesh.things.fleet import KINDS, fleet_names
+
+    with ExitStack() as stack:
+        if hosts > 1:
+            from tests import netns
+
+            net = stack.enter_context(netns.hosts(hosts))
+            lab_host = net.hosts[0]
+            endpoint, address = f"tcp/{lab_host.address}:7447", f"{lab_host.address}:8080"
         else:
-            return {"failed": f"not ready within {READY_LIMIT:.0f} s"}
+            endpoint, address = f"tcp/127.0.0.1:{free_port()}", f"127.0.0.1:{free_port()}"
+        base = f"http://{address}"
+        share = -(-n // hosts // len(KINDS)) * len(KINDS)  # devices per host, whole stations
+        counts = [min(share, n - i * share) for i in range(hosts)]
+        log = tmp / f"{topology}-{n}.log"
+        args = [*TOPOLOGIES[topology], "up", "fleet", "--fleet", str(counts[0]), "--http", address, "--no-view"]
+        started = time.monotonic()
+        if hosts > 1:
+            proc = net.hosts[0].popen(twinmesh_cmd(endpoint, *args), log)
+        else:
+            proc = subprocess.Popen(twinmesh_cmd(endpoint, *args), stdout=open(log, "wb"),
+                                    stderr=subprocess.STDOUT, start_new_session=True)
+            stack.callback(stop_process, proc, 30)
+        roots = [proc]
+        why = _wait_line(log, proc, r"ready: \d+ Things", started)
+        if why:
+            return {"failed": why}
+        devices = fleet_names(counts[0])
+        for i in range(1, hosts):
+            if counts[i] <= 0:
+                continue
+            first = 1 + i * share // len(KINDS)
+            join_log = tmp / f"{topology}-{n}-host{i}.log"
+            roots.append(net.hosts[i].popen(twinmesh_cmd("tcp/127.0.0.1:7447", *TOPOLOGIES[topology], "up", "fleet",
+                                                         "--fleet", str(counts[i]), "--fleet-first", str(first),
+                                                         "--join", endpoint), join_log))
+            devices += fleet_names(counts[i], first)
+        for i, root in enumerate(roots[1:], start=1):
+            why = _wait_line(tmp / f"{topology}-{n}-host{i}.log", root, r"ready", started)
+            if why:
+                return {"failed": f"host {i}: {why}"}
+        while len(httpx.get(base + "/", timeout=30).json()) < len(devices) + 1:  # and tdgen
+            if time.monotonic() - started > READY_LIMIT:
+                return {"failed": f"not all listed by the adapter within {READY_LIMIT:.0f} s"}
+            time.sleep(0.2)
         ready_s = time.monotonic() - started
         time.sleep(3)
-        procs = _lab_processes(psutil.Process(proc.pid))
+        procs = [p for root in roots for p in _lab_processes(psutil.Process(root.pid))]
         figures = _figures(procs)
         idle = _idle_cpu(procs)
-        from twinmesh.things.fleet import fleet_names
-
-        devices = fleet_names(n)
         with httpx.Client(timeout=30) as c:
             c.get(f"{base}/things?limit=100")
             things_ms = []
@@ -191,9 +240,7 @@ def measure(topology: str, n: int, tmp: Path) -> dict:
         fan = _fan_out(base, lights[0]) if lights else []
         return {"ready": ready_s, **figures, "idle": idle, "things": statistics.median(things_ms),
                 "http": (_pct(http, 0.5), _pct(http, 0.99)), "zenoh": (_pct(zen, 0.5), _pct(zen, 0.99)),
-                "fan": (_pct(fan, 0.5), _pct(fan, 0.99), len(fan))}
-    finally:
-        stop_process(proc, 30)
+                "fan": (_pct(fan, 0.5), _pct(fan, 0.99), len(fan)), "hosts": hosts}
 
 
 def row(topology: str, n: int, r: dict) -> str:
@@ -203,7 +250,8 @@ def row(topology: str, n: int, r: dict) -> str:
     per_rss = sum(m for m, _, _ in fleet) / 2**20
     per_fds = sum(f for _, f, _ in fleet)
     per_thr = sum(t for _, _, t in fleet)
-    return (f"| {topology} | {n:,} | {r['ready']:.1f} s | {per_rss:.0f} MB / {per_fds:,} / {per_thr} "
+    where = f" ({r['hosts']} hosts)" if r.get("hosts", 1) > 1 else ""
+    return (f"| {topology}{where} | {n:,} | {r['ready']:.1f} s | {per_rss:.0f} MB / {per_fds:,} / {per_thr} "
             f"({len(fleet)} proc.) | {r['rss'] / 2**20:.0f} MB / {r['fds']:,} / {r['threads']} | {r['idle']:.1f} % | "
             f"{r['things']:.1f} ms | {r['http'][0]:.2f} / {r['http'][1]:.2f} ms | "
             f"{r['zenoh'][0]:.2f} / {r['zenoh'][1]:.2f} ms | {r['fan'][0]:.1f} / {r['fan'][1]:.1f} ms ({r['fan'][2]}) |")
@@ -219,6 +267,8 @@ def main() -> None:
     ap.add_argument("--sizes", default="10,100,1000")
     ap.add_argument("--large", action="store_true", help="also 10,000 devices")
     ap.add_argument("--only", choices=sorted(TOPOLOGIES))
+    ap.add_argument("--hosts", type=int, default=1, help="spread each fleet over this many network namespaces "
+                    "(needs root): the lab on the first, `up fleet --join` on the others")
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")] + ([10_000] if args.large else [])
     results: dict[str, dict[int, dict]] = {}
@@ -226,7 +276,7 @@ def main() -> None:
         for topology in [args.only] if args.only else list(TOPOLOGIES):
             results[topology] = {}
             for n in sizes:
-                r = measure(topology, n, Path(tmp))
+                r = measure(topology, n, Path(tmp), args.hosts)
                 results[topology][n] = r
                 print(row(topology, n, r), flush=True)
                 if "failed" in r:

@@ -5,6 +5,7 @@ import json
 import logging
 import sys
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import click
@@ -74,19 +75,42 @@ CONNECT_NOTE = ("The lab: --connect ENDPOINT before the command (twinmesh --conn
 @click.option("--shared-memory/--no-shared-memory", default=False, show_default=True, show_envvar=True,
               help="Zenoh shared memory between the processes of a host (pays for large payloads only; each "
                    "link then costs segments and descriptors).")
+@click.option("--secure", is_flag=True, show_envvar=True,
+              help="A secure lab: Zenoh over TLS with mutual authentication and access control, HTTP with a token. "
+                   "`up --secure` makes the lab's secrets on first use; other commands find them (same account).")
+@click.option("--secrets", type=click.Path(file_okay=False), metavar="DIR", show_envvar=True,
+              help="Where a secure lab's secrets are (implies --secure) [default: $XDG_DATA_HOME/twinmesh/secrets, "
+                   "else ~/.local/share/twinmesh/secrets].")
 @click.option("-v", "--verbose", count=True,
               help="More logging (-vv for debug); also shows pybullet's own messages (on stderr).")
 @click.version_option(package_name="twinmesh", message="twinmesh %(version)s")
 @click.pass_context
-def main(ctx: click.Context, prefix, connect, listen, mode, multicast, shared_memory, verbose) -> None:
+def main(ctx: click.Context, prefix, connect, listen, mode, multicast, shared_memory, secure, secrets,
+         verbose) -> None:
     """twinmesh: a digital-twin lab for the Web of Things."""
     separate_native_stdout(show=verbose > 0)  # pybullet's C prints never mix into what a command prints
     if not verbose:
         quiet_pybullet_import()
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)],
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    secrets_dir = _secrets_dir(ctx, secure, secrets)
     ctx.obj = MeshSettings(prefix=prefix, mode=mode or "client", connect=tuple(connect) or (DEFAULT_ENDPOINT,),
-                           listen=tuple(listen), multicast=multicast, shared_memory=shared_memory)
+                           listen=tuple(listen), multicast=multicast, shared_memory=shared_memory,
+                           secrets=secrets_dir)
+
+
+def _secrets_dir(ctx: click.Context, secure: bool, secrets: str | None) -> str | None:
+    """The secrets directory of a secure lab (None: not secure). Commands other than `up` need it made."""
+    if not (secure or secrets):
+        return None
+    from twinmesh.fabric.secrets import default_secrets_dir
+
+    folder = Path(secrets) if secrets else default_secrets_dir()
+    # `up` makes them; `wait` may be started beside `up` and waits for them too
+    if ctx.invoked_subcommand not in ("up", "wait", None) and not (folder / "ca.pem").exists():
+        raise usage_exit(f"no lab secrets in {folder} (no ca.pem): start the lab with `twinmesh up --secure` "
+                         f"on this account, or give --secrets DIR (a copy of the lab's)")
+    return str(folder)
 
 
 def _auth(value: str | None) -> str | None:
@@ -177,13 +201,14 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
         raise usage_exit(str(e.args[0])) from None
     if zenoh_endpoint:
         settings = msgspec.structs.replace(settings, connect=(zenoh_endpoint,))
+    token = _prepare_secrets(settings, things, joining=bool(join))
     if join:
         _join_lab(settings, scene, specs, things, join)
         return
     things = [TDGEN_THING, *things]
     address = None if no_http else _host_port(http)
     view_address = None if no_view else _host_port(view)
-    auth = _auth(auth)
+    auth = _auth(auth or (f"bearer:{token}" if token else None))
     listen = router_listen(settings.listen, settings.connect)
     view_url, viewer = None, []
     try:
@@ -218,18 +243,41 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     except Problem as e:
         sup.shutdown()
         raise click.ClickException(f"{e.detail}; stopped the lab") from None
-    status = LabStatus(ready=True, scene=scene, things=things, http=url, zenoh=", ".join(settings.connect))
+    status = LabStatus(ready=True, scene=scene, things=things, http=url, zenoh=", ".join(settings.endpoints))
     from twinmesh.fabric.session import one_shot_session
 
-    with one_shot_session(peers) as session:
+    with one_shot_session(peers, service=True) as session:
         queryable = serve_status(session, peers, status)
         click.echo(f"twinmesh lab '{scene}' ready: {len(things)} Things on Zenoh {status.zenoh}"
                    + ("" if url is None else f", HTTP {url}") + ("" if view_url is None else f", 3D view {view_url}")
                    + (f", recorder writing {record}" if record else "")
+                   + (f", secure (secrets in {settings.secrets})" if settings.secrets else "")
                    + "  (Ctrl-C to stop)")
         code = sup.run_until_stopped()
         queryable.undeclare()
     sys.exit(code)
+
+
+def _prepare_secrets(settings: MeshSettings, things: list[str], joining: bool) -> str | None:
+    """For a secure lab: its secrets made (or, joining another host's lab, found: they are the lab's
+    copy), a credential for each of the scene's Things issued before the router starts (so that its
+    access rules know them); the HTTP token, None when the lab is not secure."""
+    if settings.secrets is None:
+        return None
+    from twinmesh.fabric.secrets import LabSecrets, SecretsError
+
+    secrets = LabSecrets(settings.secrets)
+    try:
+        if joining and not secrets.ca.exists():
+            raise SecretsError(f"no lab secrets in {secrets.dir}: copy the lab's secrets directory from the lab's "
+                               "host (at least ca.pem, ca-key.pem, router.pem, router-key.pem) and give it with "
+                               "--secrets DIR")
+        secrets.ensure()
+        for thing in things:
+            secrets.credential(f"device:{thing}")
+        return secrets.http_token()
+    except (SecretsError, OSError) as e:
+        raise click.ClickException(str(e)) from None
 
 
 def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], things: list[str], join: str) -> None:
@@ -327,7 +375,14 @@ def router(settings: MeshSettings) -> None:
 @click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS", help=AUTH_HELP)
 @click.pass_obj
 def adapter(settings: MeshSettings, http: str, auth: str | None) -> None:
-    """Run the WoT HTTP adapter for every Thing on the mesh."""
+    """Run the WoT HTTP adapter for every Thing on the mesh (in a secure lab, with its token unless --auth)."""
+    if settings.secrets is not None and not auth:
+        from twinmesh.fabric.secrets import LabSecrets, SecretsError
+
+        try:
+            auth = f"bearer:{LabSecrets(settings.secrets).http_token()}"
+        except SecretsError as e:
+            raise click.ClickException(str(e)) from None
     _run_foreground(settings, ADAPTER, address=_host_port(http), auth=_auth(auth))
 
 
@@ -366,11 +421,12 @@ def _echo(value: Any) -> None:
 
 
 @main.command()
+@click.option("--sort", "sort", is_flag=True, help="Sort the names (waits for the last answer first).")
 @click.pass_obj
-def things(settings: MeshSettings) -> None:
-    """List the Things alive on the mesh."""
+def things(settings: MeshSettings, sort: bool) -> None:
+    """List the Things alive on the mesh, one per line as their answers arrive."""
     with mesh_client(settings) as c:
-        for name in c.things():
+        for name in (c.things() if sort else c.iter_things()):
             click.echo(name)
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import msgspec
 
@@ -42,14 +42,18 @@ class MeshClient:
 
     # --- discovery ---------------------------------------------------------------------
     def things(self, timeout: float = 2.0) -> list[str]:
-        """Names of the Things alive now."""
-        names = set()
+        """Names of the Things alive now, sorted."""
+        return sorted(self.iter_things(timeout))
+
+    def iter_things(self, timeout: float = 2.0) -> Iterator[str]:
+        """Names of the Things alive now, each as soon as its answer arrives (a fleet of thousands streams)."""
+        seen = set()
         for r in self.session.liveliness().get(self.keys.all_alive(), timeout=timeout):
             if r.ok is not None:
                 parsed = self.keys.parse(str(r.ok.key_expr))
-                if parsed and parsed.kind == "alive":
-                    names.add(parsed.thing)
-        return sorted(names)
+                if parsed and parsed.kind == "alive" and parsed.thing not in seen:
+                    seen.add(parsed.thing)
+                    yield parsed.thing
 
     def is_alive(self, thing: str, timeout: float = 1.0) -> bool:
         return any(r.ok is not None for r in self.session.liveliness().get(self.keys.alive(thing), timeout=timeout))

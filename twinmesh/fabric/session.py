@@ -27,11 +27,20 @@ def _init_logging() -> None:
 
 
 @contextmanager
-def open_session(settings: MeshSettings) -> Iterator[zenoh.Session]:
-    """`with open_session(s) as session:` — the session closes (and its threads end) on exit."""
+def open_session(settings: MeshSettings, thing: str | None = None, service: bool = False
+                 ) -> Iterator[zenoh.Session]:
+    """`with open_session(s) as session:` — the session closes (and its threads end) on exit.
+
+    In a secure lab the session authenticates as the device `thing` (a Thing's own session: it may
+    serve only that Thing's keys), as a service (the adapter, tdgen, the recorder), or else as the
+    settings' role (a consumer)."""
     import zenoh
 
     _init_logging()
+    if thing is not None:
+        settings = settings.as_role(f"device:{thing}")
+    elif service:
+        settings = settings.as_role("service")
     with zenoh.open(settings.zenoh_config()) as session:
         yield session
 
@@ -61,17 +70,38 @@ def run_router_process(settings: MeshSettings, stop: threading.Event, listen: Se
     """
     import zenoh
 
-    with ExitStack() as stack:
-        try:
-            stack.enter_context(open_session(settings.as_router(tuple(listen) or None, tuple(connect))))
-        except zenoh.ZError as e:
-            logging.getLogger(__name__).error("the router cannot listen on %s: %s", ", ".join(listen), e)
-            raise SystemExit(1) from None
-        stop.wait()
+    router = settings.as_router(tuple(listen) or None, tuple(connect))
+    while True:
+        devices = _devices(router)
+        with ExitStack() as stack:
+            try:
+                stack.enter_context(open_session(router))
+            except zenoh.ZError as e:
+                logging.getLogger(__name__).error("the router cannot listen on %s: %s", ", ".join(listen), e)
+                raise SystemExit(1) from None
+            while not stop.wait(ACL_RELOAD_EVERY if devices is not None else None):
+                if _devices(router) != devices:  # a device got its credential: the access rules must know it
+                    logging.getLogger(__name__).warning("new device credentials: the router restarts with "
+                                                        "their access rules (links reconnect)")
+                    break
+            else:
+                return
+
+
+ACL_RELOAD_EVERY = 1.0  # s between two looks for new device credentials (secure labs)
+
+
+def _devices(settings: MeshSettings) -> list[str] | None:
+    if settings.secrets is None:
+        return None
+    from twinmesh.fabric.secrets import LabSecrets
+
+    return LabSecrets(settings.secrets).devices()
 
 
 @contextmanager
-def one_shot_session(settings: MeshSettings, mode_given: bool = False) -> Iterator[zenoh.Session]:
+def one_shot_session(settings: MeshSettings, mode_given: bool = False, service: bool = False
+                     ) -> Iterator[zenoh.Session]:
     """A session for a short-lived consumer (a CLI command, a workflow).
 
     Client mode unless a mode was asked for: a fresh peer may query before the router's
@@ -81,15 +111,21 @@ def one_shot_session(settings: MeshSettings, mode_given: bool = False) -> Iterat
     import msgspec
     import zenoh
 
+    from twinmesh.fabric.secrets import SecretsError
     from twinmesh.wot.problem import Unavailable
 
     settings = msgspec.structs.replace(settings, wait_for_router=False)
     if not mode_given:
         settings = msgspec.structs.replace(settings, mode="client")
-    unreachable = f"no lab reachable at {', '.join(settings.connect)} (is `twinmesh up` running?)"
+    unreachable = (f"no lab reachable at {', '.join(settings.connect)} (is `twinmesh up` running? a lab started "
+                   "with --secure needs --secure here too)" if settings.secrets is None else
+                   f"no secure lab reachable at {', '.join(settings.connect)} with the credentials in "
+                   f"{settings.secrets} (is `twinmesh up --secure` running there, with these secrets?)")
     with ExitStack() as stack:
         try:
-            session = stack.enter_context(open_session(settings))
+            session = stack.enter_context(open_session(settings, service=service))
+        except SecretsError as e:  # a secure lab's secrets are not (yet) there
+            raise Unavailable(str(e), reason="no-lab") from None
         except zenoh.ZError:  # a client that reaches no router fails to open
             raise Unavailable(unreachable, reason="no-lab") from None
         if not is_connected(session) and settings.mode != "router":

@@ -31,6 +31,11 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     JSON, and each shared-memory link costs segments and descriptors (with it, a router took
     only 350 local sessions). `wait_for_router`: a lab's parts wait (retrying every 0.25..1 s) for
     their router, which starts beside them and may restart; one-shot commands fail at once.
+
+    `secrets` (a directory, `twinmesh.fabric.secrets`): the lab is secure: TLS with mutual
+    authentication on every link (`tcp/` endpoints become `tls/`), the router applies access
+    control, and this process authenticates as `role` (consumer, service, router or
+    `device:<thing>`: `open_session` picks it).
     """
 
     prefix: str = "wot"
@@ -40,6 +45,8 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     multicast: bool = False
     shared_memory: bool = False
     wait_for_router: bool = True
+    secrets: str | None = None
+    role: str = "consumer"
     query_timeout: float = 5.0   # reads, writes, TDs
     action_timeout: float = 300.0  # motions return when done, which can take minutes at speed 1
 
@@ -54,9 +61,11 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
         conf.insert_json5("mode", json.dumps(self.mode))
         conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast))
         if self.listen:
-            conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+            conf.insert_json5("listen/endpoints", json.dumps([self._secure(e) for e in self.listen]))
         if self.connect:
-            conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+            conf.insert_json5("connect/endpoints", json.dumps([self._secure(e) for e in self.connect]))
+        if self.secrets is not None:
+            self._tls(conf)
         conf.insert_json5("transport/shared_memory/enabled", json.dumps(self.shared_memory))
         first, longest = RETRY_MS
         conf.insert_json5("connect/retry", json.dumps(
@@ -71,7 +80,33 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     def as_router(self, listen: tuple[str, ...] | None = None, connect: tuple[str, ...] = ()) -> "MeshSettings":
         """The settings of the lab's router: it listens where the peers connect (and links to the
         routers at `connect`: one router per host, the routers connected)."""
-        return msgspec.structs.replace(self, mode="router", listen=listen or self.connect, connect=connect)
+        return msgspec.structs.replace(self, mode="router", listen=listen or self.connect, connect=connect,
+                                       role="router")
+
+    @property
+    def endpoints(self) -> tuple[str, ...]:
+        """The endpoints this process connects to, as Zenoh is given them (`tls/` in a secure lab)."""
+        return tuple(self._secure(e) for e in self.connect)
+
+    def as_role(self, role: str) -> "MeshSettings":
+        """These settings authenticating as `role` (without secrets: unchanged)."""
+        return self if self.secrets is None else msgspec.structs.replace(self, role=role)
+
+    def _secure(self, endpoint: str) -> str:
+        return "tls/" + endpoint[4:] if self.secrets is not None and endpoint.startswith("tcp/") else endpoint
+
+    def _tls(self, conf) -> None:
+        from twinmesh.fabric.secrets import LabSecrets, access_control
+
+        secrets = LabSecrets(self.secrets or "")
+        cert, key = secrets.credential(self.role)
+        conf.insert_json5("transport/link/tls", json.dumps({
+            "root_ca_certificate": str(secrets.ca), "enable_mtls": True,
+            "verify_name_on_connect": False,  # the lab's own CA is the trust: hosts are reached by any address
+            "listen_certificate": str(cert), "listen_private_key": str(key),
+            "connect_certificate": str(cert), "connect_private_key": str(key)}))
+        if self.mode == "router":
+            conf.insert_json5("access_control", json.dumps(access_control(self.prefix, secrets.devices())))
 
 
 def router_listen(listen: tuple[str, ...], connect: tuple[str, ...]) -> list[str]:

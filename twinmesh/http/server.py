@@ -56,7 +56,7 @@ def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] 
     """
     security = parse_auth(auth)
     host, port = address
-    with open_session(settings) as session:
+    with open_session(settings, service=True) as session:
         registry = Registry(session, settings)
         config = uvicorn.Config(create_asgi(registry, security, view), host=host, port=int(port), lifespan="on",
                                 log_config=None, access_log=log.isEnabledFor(logging.DEBUG),

@@ -35,21 +35,21 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
     with ExitStack() as stack:
         stack.callback(lab.close)  # runs last if anything below fails
         for slug in PLATFORM_DEVICES:
-            session = stack.enter_context(open_session(settings))
+            session = stack.enter_context(open_session(settings, thing=slug))
             thing, cleanup = expose_device(session, slug, lab.platform, settings.keys)
             stack.enter_context(thing)
             stack.callback(cleanup)
         for name, unit in lab.pan_tilts.items():
-            session = stack.enter_context(open_session(settings))
+            session = stack.enter_context(open_session(settings, thing=name))
             thing, cleanup = expose_pan_tilt(session, name, unit, settings.keys)
             stack.enter_context(thing)
             stack.callback(cleanup)
         for name, lamp in lab.lamps.items():
-            session = stack.enter_context(open_session(settings))
+            session = stack.enter_context(open_session(settings, thing=name))
             stack.enter_context(Light(session, name, settings.keys, on_change=lamp.show).thing)
-        session = stack.enter_context(open_session(settings))
+        session = stack.enter_context(open_session(settings, thing=lab.ur10.name))
         stack.enter_context(RobotThing(session, settings, lab.ur10, samples=samples))
-        session = stack.enter_context(open_session(settings))
+        session = stack.enter_context(open_session(settings, thing="world"))
         stack.enter_context(WorldThing(session, lab, settings.keys))
         stack.callback(lab.world.close)  # runs first on the way out: pending motions fail, handlers answer
         log.info("iot-lab: platform, ur10, lights, pan-tilts and the world on the mesh (speed %s)",

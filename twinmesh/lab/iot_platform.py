@@ -28,11 +28,11 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
     with ExitStack() as stack:
         stack.callback(platform.close)  # runs last if anything below fails
         for slug in PLATFORM_DEVICES:
-            session = stack.enter_context(open_session(settings))
+            session = stack.enter_context(open_session(settings, thing=slug))
             thing, cleanup = expose_device(session, slug, platform, settings.keys)
             stack.enter_context(thing)
             stack.callback(cleanup)
-        session = stack.enter_context(open_session(settings))
+        session = stack.enter_context(open_session(settings, thing="world"))
         stack.enter_context(WorldThing(session, platform, settings.keys))
         stack.callback(platform.close)  # runs first on the way out: pending motions fail, handlers answer
         log.info("iot-platform: %d devices and the world on the mesh (speed %s)", len(PLATFORM_DEVICES),

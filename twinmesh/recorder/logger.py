@@ -503,7 +503,7 @@ def run(settings: MeshSettings, stop: threading.Event, path: str | None = None) 
     rec = rr.RecordingStream("twinmesh")
     rec.save(str(target))
     rec.send_recording_name(f"twinmesh {settings.prefix} {time.strftime('%Y-%m-%d %H:%M:%S')}")
-    with open_session(settings) as session, Recorder(session, settings, rec) as recorder:
+    with open_session(settings, service=True) as session, Recorder(session, settings, rec) as recorder:
         alive = recorder.start()
         reach = "" if is_connected(session) else f"; no lab reachable yet at {', '.join(settings.connect)}"
         print(f"recording to {target} ({len(alive)} things alive{reach})", file=sys.stderr, flush=True)

@@ -41,7 +41,7 @@ def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] 
     rr.serve_grpc(grpc_port=grpc_port, recording=rec, server_memory_limit=MEMORY)
     rr.serve_web_viewer(web_port=address[1], open_browser=False, connect_to=grpc_url(address[0], grpc_port))
     rec.send_recording_name(f"twinmesh {settings.prefix} live {time.strftime('%Y-%m-%d %H:%M:%S')}")
-    with open_session(settings) as session, Recorder(session, settings, rec) as recorder:
+    with open_session(settings, service=True) as session, Recorder(session, settings, rec) as recorder:
         alive = recorder.start()
         print(f"3D view at {view_url(address, grpc_port)} ({len(alive)} things alive)", file=sys.stderr, flush=True)
         stop.wait()

@@ -171,8 +171,9 @@ def run(settings: MeshSettings, stop: threading.Event, start: int, end: int, fir
         for index in range(start, end):
             if stop.is_set():
                 return
-            session = stack.enter_context(open_session(settings))
-            thing, cleanup = expose(session, FleetDevice(index, first), ticker, stations, settings.keys)
+            device = FleetDevice(index, first)
+            session = stack.enter_context(open_session(settings, thing=device.name))
+            thing, cleanup = expose(session, device, ticker, stations, settings.keys)
             stack.enter_context(thing)
             stack.callback(cleanup)
         stack.callback(ticker.stop)  # first on the way out: no reading is published to a closed Thing

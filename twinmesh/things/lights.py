@@ -88,6 +88,6 @@ def run(settings, stop: threading.Event, names: tuple[str, ...] = LIGHTS) -> Non
 
     with ExitStack() as stack:
         for name in names:
-            session = stack.enter_context(open_session(settings))
+            session = stack.enter_context(open_session(settings, thing=name))
             stack.enter_context(Light(session, name, settings.keys).thing)
         stop.wait()

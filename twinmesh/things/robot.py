@@ -268,7 +268,7 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
                          max_collision_probability=max_collision_probability, workspace_wait=WORKSPACE_WAIT,
                          planning_budget=planning_budget)
         stack.callback(twin.close)
-        session = stack.enter_context(open_session(settings))
+        session = stack.enter_context(open_session(settings, thing=twin.name))
         stack.enter_context(RobotThing(session, settings, twin, samples=samples, seed=seed))
         stack.callback(world.close)  # first on the way out: pending motions fail, their handlers answer
         log.info("%s: %s on the mesh (speed %s)", twin.name, robot.name, "max" if speed is None else f"{speed:g}")

@@ -350,5 +350,5 @@ def run(settings: MeshSettings, stop: threading.Event, cache_dir: str | None = N
     """Process entry (`twinmesh up` starts it after the router): serve until `stop` is set."""
     from twinmesh.fabric.session import open_session
 
-    with open_session(settings) as session, TdgenService(session, settings, cache_dir, workers):
+    with open_session(settings, service=True) as session, TdgenService(session, settings, cache_dir, workers):
         stop.wait()
