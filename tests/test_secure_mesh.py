@@ -153,10 +153,23 @@ def test_the_cli_finds_the_credentials_and_works(secure):
     assert lab.cli("write", "light-right", "lightState", "true").returncode == 0
     assert lab.cli("read", "light-right", "lightState").stdout.strip() == "true"
     assert {"light-left", "light-right", "tdgen"} <= set(lab.cli("things").stdout.split())
-    # without --secure the same command finds no lab, and says what to do
+    # without --secure, a command finds this account's secrets by itself (XDG_DATA_HOME/twinmesh/secrets)...
+    home = lab.log.parent / "xdg"
+    (home / "twinmesh").mkdir(parents=True, exist_ok=True)
+    if not (home / "twinmesh" / "secrets").exists():
+        (home / "twinmesh" / "secrets").symlink_to(os.path.abspath(secrets_of(lab)))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TWINMESH_")}
+    found = subprocess.run(twinmesh_cmd(lab.endpoint, "read", "light-right", "lightState"), capture_output=True,
+                           text=True, timeout=60, env={**env, "XDG_DATA_HOME": str(home)})
+    assert found.returncode == 0 and found.stdout.strip() == "true", found.stderr
+    # ... and where this account has none, it says what to do
     plain = subprocess.run(twinmesh_cmd(lab.endpoint, "read", "light-right", "lightState"), capture_output=True,
-                           text=True, timeout=60)
+                           text=True, timeout=60, env={**env, "XDG_DATA_HOME": str(lab.log.parent / "empty")})
     assert plain.returncode != 0 and "--secure" in plain.stderr
+
+
+def secrets_of(lab: Lab) -> str:
+    return lab.options[lab.options.index("--secrets") + 1]
 
 
 def test_a_robot_started_later_gets_its_credential_and_is_served(secure):

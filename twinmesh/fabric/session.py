@@ -88,6 +88,18 @@ def run_router_process(settings: MeshSettings, stop: threading.Event, listen: Se
                 return
 
 
+def _own_secrets(settings: MeshSettings) -> MeshSettings | None:
+    """`settings` with this account's lab secrets, when they were not given and exist."""
+    import msgspec
+
+    from twinmesh.fabric.secrets import default_secrets_dir
+
+    folder = default_secrets_dir()
+    if settings.secrets is not None or not (folder / "ca.pem").exists():
+        return None
+    return msgspec.structs.replace(settings, secrets=str(folder))
+
+
 ACL_RELOAD_EVERY = 1.0  # s between two looks for new device credentials (secure labs)
 
 
@@ -106,7 +118,9 @@ def one_shot_session(settings: MeshSettings, mode_given: bool = False, service: 
 
     Client mode unless a mode was asked for: a fresh peer may query before the router's
     declarations reach it and find nobody; a client sends every query to the router.
-    It does not wait for a router: raises Unavailable at once when no lab is reachable.
+    It does not wait for a router: raises Unavailable at once when no lab is reachable. Without
+    `--secure`, a lab that only a secure session reaches is tried with this account's secrets
+    (`default_secrets_dir`), if there are any: commands find a secure lab by themselves.
     """
     import msgspec
     import zenoh
@@ -127,7 +141,14 @@ def one_shot_session(settings: MeshSettings, mode_given: bool = False, service: 
         except SecretsError as e:  # a secure lab's secrets are not (yet) there
             raise Unavailable(str(e), reason="no-lab") from None
         except zenoh.ZError:  # a client that reaches no router fails to open
-            raise Unavailable(unreachable, reason="no-lab") from None
+            secure = _own_secrets(settings)
+            if secure is None:
+                raise Unavailable(unreachable, reason="no-lab") from None
+            try:
+                session = stack.enter_context(open_session(secure, service=service))
+            except (zenoh.ZError, SecretsError):
+                raise Unavailable(unreachable, reason="no-lab") from None
+            settings = secure
         if not is_connected(session) and settings.mode != "router":
             raise Unavailable(unreachable, reason="no-lab")
         yield session
