@@ -11,7 +11,7 @@ processes (per process and per device) and of the whole lab; idle CPU of the who
 10 s (the climate sensors publish every second); `/things?limit=100` latency; readproperty
 p50/p99 to random devices over HTTP and over Zenoh; property-change fan-out to 10 SSE observers.
 
-    python tests/bench/bench_scale.py [--sizes 10,100,1000] [--large] [--only star] [--hosts 10]
+    python tests/bench/bench_scale.py [--sizes 10,100,1000] [--large] [--only star] [--hosts 10] [--soak S]
 
 With `--hosts H` (root: Linux network namespaces, tests/netns.py) each fleet is spread over H hosts:
 the lab and its adapter on the first, `up fleet --join` on the others; figures sum all hosts.
@@ -154,6 +154,17 @@ def _fan_out(base: str, light: str) -> list[float]:
     return [(got[k][0] - sent[k]) * 1000 for got in arrivals for k in range(min(len(got), CHANGES))]
 
 
+def _soak(procs: list[psutil.Process], seconds: float) -> dict:
+    """Whole-lab RSS (MB) and descriptors sampled 11 times over `seconds`: what a week-long run would grow."""
+    samples = []
+    for k in range(11):
+        if k:
+            time.sleep(seconds / 10)
+        f = _figures(procs)
+        samples.append((f["rss"] / 2**20, f["fds"], f["threads"]))
+    return {"seconds": seconds, "samples": samples}
+
+
 def _failure(text: str) -> str:
     lines = text.strip().splitlines() or ["exited"]
     causes = [line for line in lines if re.search(r"OS error|Too many|ZError|Unable to", line)]
@@ -172,9 +183,10 @@ def _wait_line(log: Path, proc: subprocess.Popen, pattern: str, started: float) 
     return f"not ready within {READY_LIMIT:.0f} s"
 
 
-def measure(topology: str, n: int, tmp: Path, hosts: int = 1) -> dict:
+def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0) -> dict:
     """One fleet of `n` devices; with `hosts` > 1, spread over that many network namespaces: the lab (and
-    its adapter) on the first, `up fleet --join` on the others."""
+    its adapter) on the first, `up fleet --join` on the others. With `soak` > 0, the lab then runs on that
+    many seconds more (the sensors publishing) while its RSS and descriptors are sampled."""
     from contextlib import ExitStack
 
     from twinmesh.things.fleet import KINDS, fleet_names
@@ -238,7 +250,8 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1) -> dict:
         zen = _zenoh_reads(endpoint, devices)
         lights = [d for d in devices if d.startswith("light-")]
         fan = _fan_out(base, lights[0]) if lights else []
-        return {"ready": ready_s, **figures, "idle": idle, "things": statistics.median(things_ms),
+        drift = _soak(procs, soak) if soak > 0 else None
+        return {"soak": drift, "ready": ready_s, **figures, "idle": idle, "things": statistics.median(things_ms),
                 "http": (_pct(http, 0.5), _pct(http, 0.99)), "zenoh": (_pct(zen, 0.5), _pct(zen, 0.99)),
                 "fan": (_pct(fan, 0.5), _pct(fan, 0.99), len(fan)), "hosts": hosts}
 
@@ -263,22 +276,35 @@ HEADER = ("| topology | devices | ready | fleet processes: RSS / fds / threads |
 
 
 def main() -> None:
+    global READY_LIMIT
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", default="10,100,1000")
     ap.add_argument("--large", action="store_true", help="also 10,000 devices")
     ap.add_argument("--only", choices=sorted(TOPOLOGIES))
+    ap.add_argument("--ready-limit", type=float, default=READY_LIMIT, metavar="S",
+                    help=f"seconds a fleet may take to be ready before its size counts as failed [{READY_LIMIT:g}]")
+    ap.add_argument("--soak", type=float, default=0.0, metavar="S", help="after the figures, keep each lab "
+                    "running S seconds more and print its RSS and descriptors over that time")
     ap.add_argument("--hosts", type=int, default=1, help="spread each fleet over this many network namespaces "
                     "(needs root): the lab on the first, `up fleet --join` on the others")
     args = ap.parse_args()
+    READY_LIMIT = args.ready_limit
     sizes = [int(s) for s in args.sizes.split(",")] + ([10_000] if args.large else [])
     results: dict[str, dict[int, dict]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for topology in [args.only] if args.only else list(TOPOLOGIES):
             results[topology] = {}
             for n in sizes:
-                r = measure(topology, n, Path(tmp), args.hosts)
+                r = measure(topology, n, Path(tmp), args.hosts, args.soak)
                 results[topology][n] = r
                 print(row(topology, n, r), flush=True)
+                if r.get("soak"):
+                    first, last = r["soak"]["samples"][0], r["soak"]["samples"][-1]
+                    hours = r["soak"]["seconds"] / 3600
+                    print(f"  soak {topology} {n:,}: {r['soak']['seconds']:.0f} s, whole-lab RSS "
+                          + " ".join(f"{m:.0f}" for m, _, _ in r["soak"]["samples"])
+                          + f" MB ({(last[0] - first[0]) / hours:+.1f} MB/h), descriptors {first[1]} -> {last[1]}, "
+                          f"threads {first[2]} -> {last[2]}", flush=True)
                 if "failed" in r:
                     break
     print(f"\nmachine: {os.cpu_count()} cores; per-device cost beyond a process's fixed cost (star, between the two "

@@ -1,10 +1,13 @@
 """The Thing runtime: serve one TD's affordances on Zenoh (the exposing side, like node-wot's ExposedThing).
 
-Given a TD and handlers, `ExposedThing` declares the TD queryable, a queryable per property
-(get = read, get with payload = write), per action and per linked file, publishers for property
-changes and events, and last the liveliness token, so that a Thing is never seen alive before it
-can answer. Zenoh callbacks only hand queries to a worker pool: handlers may block (a motion
-returns when it is over) without stalling the session.
+Given a TD and handlers, `ExposedThing` serves the TD, each property (get = read, get with
+payload = write), each action and each linked file on its key, publishes property changes and
+events, and declares its liveliness token last, so that a Thing is never seen alive before it can
+answer. It declares one queryable, `<prefix>/<thing>/**`, and routes each query by its key: a
+router's work per declaration grows with the sessions it serves, so a fleet of thousands must not
+declare one queryable per affordance. A wildcard query gets one reply per affordance key it
+matches, each with its concrete key (reads only). Zenoh callbacks only hand queries to a worker
+pool: handlers may block (a motion returns when it is over) without stalling the session.
 
 An action's queryable also serves its asynchronous invocations (`twinmesh.wot.invocation`), told
 apart by the selector's parameters:
@@ -49,6 +52,7 @@ Read = Callable[[], Any]
 Write = Callable[[Any], object]  # what it returns is ignored
 Act = Callable[[Any], Any]
 FileSource = Callable[[], bytes]
+Route = tuple[str, Callable[..., Any], tuple[Any, ...]]  # (what it changes, its answer, the answer's arguments)
 
 JSON_ENCODING = "application/json"
 NO_INPUT = None
@@ -105,6 +109,8 @@ class ExposedThing:
         self._pool, self._runner = shared_pools()
         self.invocations = Invocations(self._runner)
         self._declared: list[Any] = []
+        self._routes: dict[str, Route] = {}
+        self._route_keys: list[tuple[Any, str]] = []
         self._publishers: dict[str, Any] = {}
         self._td_json = b""
         self._exposed = False
@@ -130,8 +136,8 @@ class ExposedThing:
         return self
 
     def on_any_file(self, lookup: Callable[[str], tuple[bytes, str]]) -> "ExposedThing":
-        """Serve every file name through one lookup, `name -> (bytes, content type)` (one queryable on
-        `files/*`), for Things whose files come and go (the tdgen service); raise NotFound for unknown
+        """Serve every file name through one lookup, `name -> (bytes, content type)` (any
+        `files/<name>` key), for Things whose files come and go (the tdgen service); raise NotFound for unknown
         names. Use instead of `on_file`, not with it."""
         self._file_lookup = lookup
         return self
@@ -203,21 +209,19 @@ class ExposedThing:
             raise ValueError(f"{self.name}: no handler for {', '.join(missing)}")
         self.td = self._truthful(self.td)
         self._td_json = self._served_td()
-        k, s = self.keys, self.session
-        def serve(key: str, answer: Callable[..., Any], *args: Any, acts: str = "") -> None:
-            self._declared.append(s.declare_queryable(key, direct(self._dispatch(key, acts, answer, *args))))
+        import zenoh
 
-        serve(k.td(self.name), self._answer_td)
-        for p in self.td.properties:
-            serve(k.property(self.name, p), self._answer_property, p, acts="with-payload")
-        for a in self.td.actions:
-            serve(k.action(self.name, a), self._answer_action, a, acts="action")
-        for f in self._files:
-            serve(k.file(self.name, f), self._answer_file, f)
-        if self._file_lookup is not None:
-            self._declared.append(s.declare_queryable(k.file(self.name, "*"), direct(self._any_file)))
+        k = self.keys
+        routes: dict[str, Route] = {k.td(self.name): ("", self._answer_td, ())}
+        routes.update({k.property(self.name, p): ("with-payload", self._answer_property, (p,))
+                       for p in self.td.properties})
+        routes.update({k.action(self.name, a): ("action", self._answer_action, (a,)) for a in self.td.actions})
+        routes.update({k.file(self.name, f): ("", self._answer_file, (f,)) for f in self._files})
+        self._routes = routes
+        self._route_keys = [(zenoh.KeyExpr(key), key) for key in routes]
+        self._declared.append(self.session.declare_queryable(f"{k.alive(self.name)}/**", direct(self._route)))
         self._exposed = True
-        self._declared.append(s.liveliness().declare_token(k.alive(self.name)))
+        self._declared.append(self.session.liveliness().declare_token(k.alive(self.name)))
         return self
 
     def destroy(self) -> None:
@@ -242,28 +246,41 @@ class ExposedThing:
     def __exit__(self, *exc) -> None:
         self.destroy()
 
-    # --- query handling (worker threads) ----------------------------------------------------
-    def _dispatch(self, key: str, acts: str, answer: Callable[..., Any], *args: Any):
-        """A queryable's callback for the concrete `key`; `acts` says when a query changes something
-        ("with-payload": writes; "action": all but status queries), which only a query on exactly
-        `key` may do."""
-        def callback(query) -> None:  # runs on a Zenoh thread: never block here
-            self._pool.submit(self._serve, query, key, acts, answer, args)
-        return callback
+    # --- query handling -----------------------------------------------------------------------
+    def _route(self, query) -> None:  # runs on a Zenoh thread: never block here
+        """The key's route (`acts` says when a query changes something: "with-payload", writes;
+        "action", all but status queries; only a query on exactly that key may); a wildcard query
+        gets every route it matches; a file name through `on_any_file`'s lookup; else no reply."""
+        asked = str(query.key_expr)
+        route = self._routes.get(asked)
+        if route is not None:
+            self._pool.submit(self._serve, query, [(asked, route)])
+            return
+        if "*" in asked or "$" in asked:
+            matched = [(key, self._routes[key]) for expr, key in self._route_keys if query.key_expr.intersects(expr)]
+            if matched:
+                self._pool.submit(self._serve, query, matched)
+                return
+        else:
+            parsed = self.keys.parse(asked)
+            lookup = self._file_lookup
+            if lookup is not None and parsed is not None and parsed.thing == self.name and parsed.kind == "files" \
+                    and NAME.match(parsed.name):
+                name = parsed.name
+                self._pool.submit(self._serve, query, [(asked, ("", lambda _payload: lookup(name), ()))])
+                return
+        query.drop()  # nothing of this Thing's: no reply
 
-    def _any_file(self, query) -> None:  # Zenoh thread: the file name is the last chunk of the key
-        key = str(query.key_expr)
-        name = key.rsplit("/", 1)[-1]
-        if not NAME.match(name):  # a wildcard query for files: answer for no name rather than for "**"
-            return
-        lookup = self._file_lookup
-        if lookup is None:
-            return
-        self._pool.submit(self._serve, query, key, "", lambda _payload: lookup(name), ())
+    def _serve(self, query, routes: list[tuple[str, Route]]) -> None:  # a worker thread
+        try:
+            for key, (acts, answer, args) in routes:
+                if not self._exposed:  # destroyed while the query waited for a worker: no reply
+                    return
+                self._answer(query, key, acts, answer, args)
+        finally:
+            query.drop()
 
-    def _serve(self, query, key: str, acts: str, answer, args) -> None:
-        if not self._exposed:  # destroyed while the query waited for a worker: the querier times out
-            return
+    def _answer(self, query, key: str, acts: str, answer, args) -> None:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else None
             asked = str(query.key_expr)
@@ -280,8 +297,6 @@ class ExposedThing:
         except Exception as e:  # a device bug must still answer, not time out
             log.exception("%s: handler failed", self.name)
             query.reply_err(Problem(f"{type(e).__name__}: {e}").to_json(), encoding="application/problem+json")
-        finally:
-            query.drop()
 
     def _answer_td(self, payload: bytes | None) -> bytes:
         return self._td_json

@@ -122,6 +122,9 @@ class Registry:
         """
         work = asyncio.ensure_future(anyio.to_thread.run_sync(
             functools.partial(fn, *args), limiter=self._limiter, abandon_on_cancel=True))
+        # a caller cancelled meanwhile (a Thing that left while its TD was fetched) no longer reads the
+        # outcome: it is read here, or asyncio logs "exception was never retrieved" for every such call
+        work.add_done_callback(_outcome_read)
         assert self._deadline is not None, "start() first"
         try:
             await asyncio.wait({work, self._deadline}, return_when=asyncio.FIRST_COMPLETED)
@@ -228,13 +231,17 @@ class Registry:
         return None
 
     async def _fetch_td(self, entry: ThingEntry, generation: int) -> None:
-        """A fresh peer's queryables may take a moment to reach us: retry with backoff."""
-        delay, last = 0.05, None
-        for _ in range(self.fetch_attempts):
+        """A fresh peer's queryables may take a moment to reach us, and a mesh with thousands of Things
+        starting may answer late: retry with backoff (up to every 30 s) as long as the Thing is alive,
+        saying once when it takes long."""
+        delay, attempts = 0.05, 0
+        while True:
             try:
                 reply = await self.call(self.client.request, self.keys.td(entry.name), None, None, entry.name)
             except Problem as p:
-                last = p
+                attempts += 1
+                if attempts == self.fetch_attempts:
+                    log.warning("%s: no TD after %d attempts (%s); still trying", entry.name, attempts, p)
             else:
                 if entry.generation == generation:
                     self._set_td(entry, reply.payload)
@@ -242,8 +249,7 @@ class Registry:
             if entry.generation != generation or not entry.alive:
                 return
             await asyncio.sleep(delay)
-            delay = min(delay * 2, 2.0)
-        log.warning("%s: no TD after %d attempts (%s)", entry.name, self.fetch_attempts, last)
+            delay = min(delay * 2, 2.0 if attempts < self.fetch_attempts else 30.0)
 
     def _set_td(self, entry: ThingEntry, payload: bytes) -> None:
         known = entry.td is not None and entry.source is not None
@@ -402,3 +408,8 @@ def _undeclare(declared: Any) -> None:
         (declared.close if isinstance(declared, Directory) else declared.undeclare)()
     except Exception:  # the session may already be closing
         pass
+
+
+def _outcome_read(work: asyncio.Future) -> None:
+    if not work.cancelled():
+        work.exception()

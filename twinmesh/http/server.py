@@ -63,5 +63,8 @@ def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] 
                                 timeout_graceful_shutdown=GRACE,  # type: ignore[arg-type]  # a float works
                                 server_header=False)
         server = _Server(config)
-        asyncio.run(_serve(server, registry, stop))
+        # uvicorn's own loop choice (uvloop when installed, as it is with twinmesh): asyncio.run alone would
+        # run the pure-Python loop whatever the config says
+        with asyncio.Runner(loop_factory=config.get_loop_factory()) as runner:
+            runner.run(_serve(server, registry, stop))
         log.info("adapter on %s:%s stopped", host, port)
