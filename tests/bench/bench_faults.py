@@ -155,6 +155,8 @@ def cut_cable(tmp: Path) -> tuple[float, float] | str:
 
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
+        for name in ("baseline", "parts", "cable"):
+            (Path(tmp) / name).mkdir()
         baseline = whole_restart(Path(tmp) / "baseline")
         rows = kill_each(Path(tmp) / "parts")
         cable = cut_cable(Path(tmp) / "cable")
@@ -172,7 +174,7 @@ def main() -> None:
     else:
         print(f"\ncut cable between two hosts (network namespaces): the lab's adapter answered 503 for the other "
               f"host's light {cable[0]:.2f} s after the cut, and served it again {cable[1]:.2f} s after the cable "
-              "was plugged back (router lease 1.5 s).")
+              "was plugged back (the joining router's lease: 1.5 s).")
 
 
 if __name__ == "__main__":
