@@ -60,8 +60,9 @@ def test_a_second_host_joins_a_lab_its_things_are_driven_from_the_first_and_a_cu
         _ready(lab_log, "the lab on host A")
         join_log = tmp_path / "b-lights.log"
         joined = b.popen([*TWINMESH, "up", "lights", "--join", endpoint], join_log)
-        robot_log = tmp_path / "b-robot.log"
-        b.popen([*TWINMESH, "robot", "ur10.urdf", "--name", "ur10", "--samples", "300", "--speed", "max"], robot_log)
+        robot_log = tmp_path / "b-robot.log"  # a robot on B linked straight to A's router
+        b.popen([*TWINMESH, "robot", "ur10.urdf", "--name", "ur10", "--samples", "300", "--speed", "max",
+                 "--join", endpoint], robot_log)
         _ready(join_log, "`up lights --join` on host B")
         assert "no adapter" not in join_log.read_text()
         _until("B's lights and robot listed by A's adapter",
@@ -80,14 +81,19 @@ def test_a_second_host_joins_a_lab_its_things_are_driven_from_the_first_and_a_cu
         net.cut(b)
         gone = _until("503 for B's light after the cut",
                       lambda: httpx.get(f"{base}/light-left/properties/lightState", timeout=10).status_code == 503)
-        assert "light-left" not in _listed(base)
+        robot_gone = _until("503 for B's robot after the cut",
+                            lambda: httpx.get(f"{base}/ur10/properties/getJointposition", timeout=10).status_code == 503)
+        assert "light-left" not in _listed(base) and "ur10" not in _listed(base)
         assert set(fleet_names(5)) <= _listed(base)  # A's own Things keep serving
         assert httpx.get(f"{base}/light-1/properties/lightState", timeout=10).status_code == 200
         net.plug(b)
         back = _until("B's light back after the link returned",
                       lambda: httpx.get(f"{base}/light-left/properties/lightState", timeout=10).status_code == 200)
         assert httpx.get(f"{base}/light-left/properties/lightState", timeout=10).json() is True  # its state kept
-        print(f"cut link: 503 after {gone:.2f} s; link back: served again after {back:.2f} s")
+        robot_back = _until("B's robot back after the link returned",
+                            lambda: httpx.get(f"{base}/ur10/properties/getJointposition", timeout=10).status_code == 200)
+        print(f"cut link: 503 after {gone:.2f} s (the robot: {gone + robot_gone:.2f} s); link back: served again "
+              f"after {back:.2f} s (the robot: {back + robot_back:.2f} s)")
 
 
 def test_four_hosts_make_one_fleet_that_joins_and_leaves_cleanly(tmp_path):

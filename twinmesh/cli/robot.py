@@ -39,8 +39,8 @@ def _speed(value: str) -> float | None:
 @click.option("--planning-budget", type=click.FloatRange(min=0.01), default=1.0, show_default=True, metavar="S",
               help="Seconds a move may spend planning a path around obstacles before it is refused (no-path).")
 @click.option("--speed", default="1", show_default=True, help="Simulation speed factor, or 'max'.")
-@click.option("--join", metavar="ENDPOINT", help="The lab to serve the robot in: its router (on this host or another; "
-              "the same as the global --connect).")
+@click.option("--join", metavar="ENDPOINT", help="The lab to serve the robot in: its router on another host (or this one); "
+              "like the global --connect, with the short lease a link between hosts has.")
 @arm_options
 @mount_options
 @click.pass_obj
@@ -55,8 +55,8 @@ def robot_command(settings: MeshSettings, urdf: str, scene: str | None, name: st
     from twinmesh.fabric.keys import check_slug
     from twinmesh.lab.supervisor import install_stop_handlers
 
-    if join:
-        settings = msgspec.structs.replace(settings, connect=(join,))
+    if join:  # a link to another host's lab: the short lease, so that the lab sees a cut at once
+        settings = msgspec.structs.replace(settings, connect=(join,), crosses_hosts=True)
 
     if name is not None:
         try:

@@ -14,10 +14,11 @@ Mode = Literal["peer", "client", "router"]
 
 
 # Zenoh expires a link after the lease its *other* end announced, and each end sends keep-alives every
-# own lease / 4. A router that joins another host's lab announces a short lease, so that the lab sees a
-# cut cable within 1.5 s; no other process does, or its router would send each of its local clients a
-# keep-alive every 0.375 s (a fleet of 1,000: 2,700 messages/s, 12 % of a core at idle).
-JOINING_ROUTER_LEASE_MS = 1500
+# own lease / 4. A router that joins another host's lab (or a robot that joins it directly, `robot
+# --join`) announces a short lease, so that the lab sees a cut cable within 1.5 s. No other process
+# does: the lab's router would send each of its local clients a keep-alive every 0.375 s (a fleet of
+# 1,000: 2,700 messages/s, 12 % of a core at idle).
+JOINING_LEASE_MS = 1500
 # Everything else, the lab's router and every client (a device, a service), announces a long lease:
 # a link is expired only after 60 s of silence, and a keep-alive goes every 15 s. A process on the
 # same host that dies closes its socket, which the other end sees at once; but a router busy with
@@ -56,6 +57,7 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     shared_memory: bool = False
     wait_for_router: bool = True
     secrets: str | None = None
+    crosses_hosts: bool = False  # its link goes to another host's router: announce the short lease
     role: str = "consumer"
     query_timeout: float = 5.0   # reads, writes, TDs
     action_timeout: float = 300.0  # motions return when done, which can take minutes at speed 1
@@ -80,7 +82,8 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
         first, longest = RETRY_MS
         conf.insert_json5("connect/retry", json.dumps(
             {"period_init_ms": first, "period_max_ms": longest, "period_increase_factor": 2}))
-        lease = JOINING_ROUTER_LEASE_MS if self.mode == "router" and self.connect else LOCAL_LEASE_MS
+        joins = self.crosses_hosts or self.mode == "router" and bool(self.connect)
+        lease = JOINING_LEASE_MS if joins else LOCAL_LEASE_MS
         if self.mode != "peer":  # peers keep Zenoh's defaults: the old topology, measured as it was
             conf.insert_json5("transport/link/tx/lease", json.dumps(lease))
         if self.mode == "client" and self.wait_for_router:
