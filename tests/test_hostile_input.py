@@ -107,6 +107,18 @@ def test_a_wildcard_query_may_read_but_never_acts_and_replies_name_the_thing(lab
                                                     "wot/light-right/properties/lightState"]
 
 
+def test_a_wildcard_within_a_thing_gets_one_reply_per_affordance_and_an_unknown_key_none(zenoh_session):
+    # a Thing serves all its keys through one queryable (wot/<thing>/**) and routes each query itself
+    read = replies(zenoh_session, "wot/light-left/properties/*")
+    assert sorted(k for k, ok, _ in read if ok) == ["wot/light-left/properties/lightColor",
+                                                    "wot/light-left/properties/lightState"]
+    assert len(read) == 2
+    everything = {k for k, ok, _ in replies(zenoh_session, "wot/light-left/**") if ok}
+    assert {"wot/light-left/td", "wot/light-left/properties/lightState"} <= everything
+    assert replies(zenoh_session, "wot/light-left/properties/nosuch") == []
+    assert replies(zenoh_session, "wot/light-left/unknown/key/here") == []
+
+
 def test_a_forged_publication_is_not_served_and_a_forged_td_changes_nothing(lab, http, zenoh_session):
     lab.cli("invoke", "light-right", "switchOff", check=True)
     http.get("/light-right/properties/lightState")
