@@ -23,7 +23,7 @@ JOINING_LEASE_MS = 1500
 # a link is expired only after 60 s of silence, and a keep-alive goes every 15 s. A process on the
 # same host that dies closes its socket, which the other end sees at once; but a router busy with
 # thousands of sessions starting may send or read a keep-alive late, and must not drop a healthy
-# client for it (which then reconnects and declares everything again: 10,000 devices never settled).
+# client for it (which then reconnects and declares everything again, as 10,000 devices did).
 LOCAL_LEASE_MS = 60_000
 # Zenoh closes a link whose send queue stays full this long (default 5 s). While thousands of devices
 # start, a fleet process busy answering TD queries reads late and its links fill up: with 5 s the router
