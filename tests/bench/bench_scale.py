@@ -171,19 +171,20 @@ def _failure(text: str) -> str:
     return (causes or lines)[0][-160:].replace("|", "/")
 
 
-def _wait_line(log: Path, proc: subprocess.Popen, pattern: str, started: float) -> str | None:
-    """None once `pattern` is in the log; otherwise why not (the process ended, or READY_LIMIT passed)."""
-    while time.monotonic() - started < READY_LIMIT:
+def _wait_line(log: Path, proc: subprocess.Popen, pattern: str, started: float, limit: float) -> str | None:
+    """None once `pattern` is in the log; otherwise why not (the process ended, or `limit` s passed)."""
+    while time.monotonic() - started < limit:
         text = log.read_text(errors="replace")
         if re.search(pattern, text):
             return None
         if proc.poll() is not None:
             return _failure(text)
         time.sleep(0.2)
-    return f"not ready within {READY_LIMIT:.0f} s"
+    return f"not ready within {limit:.0f} s"
 
 
-def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0) -> dict:
+def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
+            limit: float = READY_LIMIT) -> dict:
     """One fleet of `n` devices; with `hosts` > 1, spread over that many network namespaces: the lab (and
     its adapter) on the first, `up fleet --join` on the others. With `soak` > 0, the lab then runs on that
     many seconds more (the sensors publishing) while its RSS and descriptors are sampled."""
@@ -213,7 +214,7 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0)
                                     stderr=subprocess.STDOUT, start_new_session=True)
             stack.callback(stop_process, proc, 30)
         roots = [proc]
-        why = _wait_line(log, proc, r"ready: \d+ Things", started)
+        why = _wait_line(log, proc, r"ready: \d+ Things", started, limit)
         if why:
             return {"failed": why}
         devices = fleet_names(counts[0])
@@ -227,12 +228,12 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0)
                                                          "--join", endpoint), join_log))
             devices += fleet_names(counts[i], first)
         for i, root in enumerate(roots[1:], start=1):
-            why = _wait_line(tmp / f"{topology}-{n}-host{i}.log", root, r"ready", started)
+            why = _wait_line(tmp / f"{topology}-{n}-host{i}.log", root, r"ready", started, limit)
             if why:
                 return {"failed": f"host {i}: {why}"}
         while len(httpx.get(base + "/", timeout=30).json()) < len(devices) + 1:  # and tdgen
-            if time.monotonic() - started > READY_LIMIT:
-                return {"failed": f"not all listed by the adapter within {READY_LIMIT:.0f} s"}
+            if time.monotonic() - started > limit:
+                return {"failed": f"not all listed by the adapter within {limit:.0f} s"}
             time.sleep(0.2)
         ready_s = time.monotonic() - started
         time.sleep(3)
@@ -276,7 +277,6 @@ HEADER = ("| topology | devices | ready | fleet processes: RSS / fds / threads |
 
 
 def main() -> None:
-    global READY_LIMIT
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", default="10,100,1000")
     ap.add_argument("--large", action="store_true", help="also 10,000 devices")
@@ -288,14 +288,13 @@ def main() -> None:
     ap.add_argument("--hosts", type=int, default=1, help="spread each fleet over this many network namespaces "
                     "(needs root): the lab on the first, `up fleet --join` on the others")
     args = ap.parse_args()
-    READY_LIMIT = args.ready_limit
     sizes = [int(s) for s in args.sizes.split(",")] + ([10_000] if args.large else [])
     results: dict[str, dict[int, dict]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for topology in [args.only] if args.only else list(TOPOLOGIES):
             results[topology] = {}
             for n in sizes:
-                r = measure(topology, n, Path(tmp), args.hosts, args.soak)
+                r = measure(topology, n, Path(tmp), args.hosts, args.soak, args.ready_limit)
                 results[topology][n] = r
                 print(row(topology, n, r), flush=True)
                 if r.get("soak"):

@@ -139,8 +139,9 @@ def missing_tds(client, things: Iterable[str], timeout: float = 1.0) -> list[str
         return True
 
     asked = [t for t in things if t in alive]
-    with ThreadPoolExecutor(min(TD_QUERIES_AT_ONCE, max(1, len(asked)))) as pool:  # a fleet: thousands of TDs
-        missing += [t for t, ok in zip(asked, pool.map(answers, asked)) if not ok]
+    if asked:
+        with ThreadPoolExecutor(min(TD_QUERIES_AT_ONCE, len(asked))) as pool:  # a fleet: thousands of TDs
+            missing += [t for t, ok in zip(asked, pool.map(answers, asked)) if not ok]
     return missing
 
 
