@@ -7,6 +7,7 @@ not where they cannot be created, for a skip.
 """
 from __future__ import annotations
 
+import itertools
 import os
 import shutil
 import subprocess
@@ -17,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+_calls = itertools.count()
 
 
 def _ip(*args: str, ns: str | None = None, check: bool = True) -> subprocess.CompletedProcess:
@@ -70,8 +72,9 @@ class Network:
 @contextmanager
 def hosts(n: int, net: int | None = None) -> Iterator[Network]:
     """`n` hosts on one bridge; everything (processes, namespaces, bridge) is removed afterwards."""
-    tag = f"{os.getpid() % 100000}"
-    net = net if net is not None else 100 + os.getpid() % 100
+    call = next(_calls)  # names of their own: a namespace a failed test left behind for a moment collides with none
+    tag = f"{os.getpid() % 100000}c{call % 10}"
+    net = net if net is not None else 100 + (os.getpid() + call) % 100
     bridge = f"tmbr{tag}"
     made: list[Host] = []
     try:

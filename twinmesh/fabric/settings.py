@@ -25,12 +25,6 @@ JOINING_LEASE_MS = 1500
 # thousands of sessions starting may send or read a keep-alive late, and must not drop a healthy
 # client for it (which then reconnects and declares everything again, as 10,000 devices did).
 LOCAL_LEASE_MS = 60_000
-# Zenoh closes a link whose send queue stays full this long (default 5 s). While thousands of devices
-# start, a fleet process busy answering TD queries reads late and its links fill up: with 5 s the router
-# dropped healthy sessions, which reconnected and declared everything again (5,000 and 10,000 devices
-# never settled); with 60 s, 5,000 sessions stayed open. The price: a client that stops reading holds
-# the router's sending to it up to 60 s before it is closed.
-ROUTER_WAIT_BEFORE_CLOSE_US = 60_000_000
 ROUTER_MAX_SESSIONS = 100_000  # Zenoh's default (1,000) would cap a host at 1,000 devices
 RETRY_MS = (250, 1000)  # a device reconnects this fast after its router came back (first, longest pause)
 
@@ -96,8 +90,6 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
             conf.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": -1}))
         if self.mode == "router":
             conf.insert_json5("transport/unicast/max_sessions", json.dumps(ROUTER_MAX_SESSIONS))
-            conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close",
-                              json.dumps(ROUTER_WAIT_BEFORE_CLOSE_US))
         return conf
 
     def as_router(self, listen: tuple[str, ...] | None = None, connect: tuple[str, ...] = ()) -> "MeshSettings":
