@@ -7,7 +7,7 @@ import threading
 from contextlib import ExitStack, contextmanager
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
-from twinmesh.fabric.settings import MeshSettings
+from twinmesh.fabric.settings import ROUTER_RUNTIME, MeshSettings
 
 if TYPE_CHECKING:
     import zenoh
@@ -68,6 +68,7 @@ def run_router_process(settings: MeshSettings, stop: threading.Event, listen: Se
     A router that cannot listen (the port was taken after `up` checked it) logs one line and
     exits with code 1, so the supervisor stops the lab instead of leaving it without a router.
     """
+    os.environ.setdefault("ZENOH_RUNTIME", ROUTER_RUNTIME)  # read once, when Zenoh's runtime starts
     import zenoh
 
     router = settings.as_router(tuple(listen) or None, tuple(connect))

@@ -26,6 +26,11 @@ JOINING_LEASE_MS = 1500
 # client for it (which then reconnects and declares everything again, as 10,000 devices did).
 LOCAL_LEASE_MS = 60_000
 ROUTER_MAX_SESSIONS = 100_000  # Zenoh's default (1,000) would cap a host at 1,000 devices
+# Zenoh closes a dead link's TCP socket with a 10 s linger, synchronously, on one of its 2 receive
+# threads (zenoh#1101, zenoh#2718): a cut host's two links (its router, a robot joined directly) held
+# both, and the lab's router forwarded nothing for 5-10 s, its own devices' reads included. The
+# router gets 16 receive threads: as many links can die at once before one healthy link waits.
+ROUTER_RUNTIME = "(rx: (worker_threads: 16))"  # Zenoh's runtime settings (ZENOH_RUNTIME), for routers
 RETRY_MS = (250, 1000)  # a device reconnects this fast after its router came back (first, longest pause)
 
 
