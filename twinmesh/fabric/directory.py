@@ -4,15 +4,18 @@ from __future__ import annotations
 import threading
 from typing import Callable
 
+from twinmesh.fabric.drain import Drained
 from twinmesh.fabric.keys import Keys
 
 Listener = Callable[[str], None]
+CHANGES_WAITING = 1 << 16  # joins and leaves waiting for the directory's thread before Zenoh waits
 
 
 class Directory:
     """Tracks the Things alive under a prefix and tells listeners about joins and leaves.
 
-    Listeners run on Zenoh's callback thread: they must not block (hand work to a thread or a loop).
+    Listeners run on the directory's own thread, in the order of the joins and leaves (none is
+    dropped): they must not block (hand work to a thread or a loop).
     """
 
     def __init__(self, session, keys: Keys, on_join: Listener | None = None, on_leave: Listener | None = None):
@@ -22,7 +25,13 @@ class Directory:
         self._changed = threading.Condition(self._lock)
         self._on_join = on_join
         self._on_leave = on_leave
-        self._sub = session.liveliness().declare_subscriber(keys.all_alive(), self._sample, history=True)
+        self._sub = Drained(lambda handler: session.liveliness().declare_subscriber(keys.all_alive(), handler,
+                                                                                  history=True),
+                            self._samples, CHANGES_WAITING, False, "directory")
+
+    def _samples(self, samples) -> None:
+        for sample in samples:
+            self._sample(sample)
 
     def _sample(self, sample) -> None:
         parsed = self.keys.parse(str(sample.key_expr))

@@ -21,7 +21,7 @@ import logging
 import time
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import anyio
 import anyio.to_thread
@@ -29,9 +29,9 @@ import msgspec
 
 from twinmesh.fabric.client import MeshClient, Reply
 from twinmesh.fabric.directory import Directory
+from twinmesh.fabric.drain import Drained
 from twinmesh.fabric.keys import NAME as NAME  # the names a key may hold: the routes check them
 from twinmesh.fabric.keys import SLUG as SLUG
-from twinmesh.fabric.session import direct
 from twinmesh.fabric.settings import MeshSettings
 from twinmesh.http.observers import Change, Feed, Observers
 from twinmesh.http.problems import unavailable
@@ -43,6 +43,7 @@ from twinmesh.wot.td import ThingDescription, decode_td
 from twinmesh.wot.validate import validate
 
 log = logging.getLogger(__name__)
+PUBLICATIONS_WAITING = 100_000  # samples the adapter holds before it drops the oldest (a burst, or an overload)
 DIRECTORY = "/directory"  # the feeds of the directory's own notifications (never a Thing name: those are slugs)
 
 
@@ -72,9 +73,13 @@ class ThingEntry:
 class Registry:
     """Start with `await start()` on the serving loop; `begin_shutdown()` ends every observer."""
 
-    def __init__(self, session, settings: MeshSettings, *, max_age: float = 5.0, fetch_attempts: int = 8,
-                 threads: int = 256, feed_size: int = 256, shutdown_grace: float = 0.8):
+    def __init__(self, session, settings: MeshSettings, *, presence=None, max_age: float = 5.0,
+                 fetch_attempts: int = 8, threads: int = 256, feed_size: int = 256, shutdown_grace: float = 0.8):
+        """`presence`: a second session for the liveliness tokens (joins and leaves), so that `session`,
+        which takes every publication, holds none: a Zenoh client matches each sample it receives
+        against every key it knows, and with 5,000 tokens that alone kept a core busy."""
         self.client = MeshClient(session, settings)
+        self._presence = presence if presence is not None else session
         self.settings = settings
         self.keys = settings.keys
         self.max_age = max_age
@@ -95,9 +100,11 @@ class Registry:
         self._deadline = self._loop.create_future()
         self._limiter = anyio.CapacityLimiter(self.threads)
         session = self.client.session
-        # run on Zenoh's thread (it only hands the sample to the loop): no hop through a thread of its own
-        self._declared.append(await self.call(session.declare_subscriber, self.keys.everything(), direct(self._sample)))
-        self._declared.append(await self.call(Directory, session, self.keys, self._joined, self._left))
+        # publications of every Thing, handed to the loop in batches by a thread of their own (fabric.drain)
+        self._declared.append(await self.call(
+            Drained, functools.partial(session.declare_subscriber, self.keys.everything()), self._samples,
+            PUBLICATIONS_WAITING, True, "adapter-publications"))
+        self._declared.append(await self.call(Directory, self._presence, self.keys, self._joined, self._left))
 
     def begin_shutdown(self) -> None:
         """End long-polls and SSE streams now, so that the server can stop with them open."""
@@ -142,10 +149,14 @@ class Registry:
         except RuntimeError:  # the loop is closed: we are shutting down
             pass
 
-    def _sample(self, sample) -> None:
-        parsed = self.keys.parse(str(sample.key_expr))
-        if parsed is not None and parsed.kind in ("properties", "events", "td") and str(sample.kind).endswith("PUT"):
-            self._soon(self._on_sample, parsed.thing, parsed.kind, parsed.name, sample.payload.to_bytes())
+    def _samples(self, samples: Sequence[Any]) -> None:
+        published = []
+        for sample in samples:
+            parsed = self.keys.parse(str(sample.key_expr))
+            if parsed is not None and parsed.kind in ("properties", "events", "td") and str(sample.kind).endswith("PUT"):
+                published.append((parsed.thing, parsed.kind, parsed.name, sample.payload.to_bytes()))
+        if published:
+            self._soon(self._on_samples, published)
 
     def _joined(self, thing: str) -> None:
         self._soon(self._on_join, thing)
@@ -176,6 +187,10 @@ class Registry:
         if entry.td is not None:
             self._directory_event("thing_deleted", entry)
         log.info("%s left the mesh", thing)
+
+    def _on_samples(self, published: list[tuple[str, str, str, bytes]]) -> None:
+        for sample in published:
+            self._on_sample(*sample)
 
     def _on_sample(self, thing: str, kind: str, name: str, payload: bytes) -> None:
         entry = self._things.get(thing)

@@ -56,8 +56,8 @@ def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] 
     """
     security = parse_auth(auth)
     host, port = address
-    with open_session(settings, service=True) as session:
-        registry = Registry(session, settings)
+    with open_session(settings, service=True) as session, open_session(settings, service=True) as presence:
+        registry = Registry(session, settings, presence=presence)
         config = uvicorn.Config(create_asgi(registry, security, view), host=host, port=int(port), lifespan="on",
                                 log_config=None, access_log=log.isEnabledFor(logging.DEBUG),
                                 timeout_graceful_shutdown=GRACE,  # type: ignore[arg-type]  # a float works
