@@ -170,3 +170,12 @@ def test_descriptors_and_threads_per_device_stay_bounded_as_the_fleet_doubles(tm
     assert all(d <= 2 for d in per_device), figures
     # threads are the process's, not the devices'
     assert t240 - t60 <= 8 * p60, figures
+
+
+def test_direct_without_join_is_refused_naming_the_option():
+    from click.testing import CliRunner
+
+    from twinmesh.cli.main import main
+
+    result = CliRunner().invoke(main, ["up", "fleet", "--fleet", "5", "--direct"])
+    assert result.exit_code == 2 and "--direct is for --join" in result.output, result.output

@@ -106,7 +106,10 @@ def test_a_second_host_joins_a_lab_its_things_are_driven_from_the_first_and_a_cu
               f"after {back:.2f} s (the robot: {back + robot_back:.2f} s)")
 
 
-def test_four_hosts_make_one_fleet_that_joins_and_leaves_cleanly(tmp_path):
+@pytest.mark.parametrize("direct", [False, True], ids=["a-router-per-host", "direct"])
+def test_four_hosts_make_one_fleet_that_joins_and_leaves_cleanly(tmp_path, direct):
+    """Each joining host with its router linked to the lab's, or (`--direct`) none: its devices are
+    clients of the lab's router."""
     per_host = 50
     with netns.hosts(4) as net:
         first, *others = net.hosts
@@ -116,10 +119,14 @@ def test_four_hosts_make_one_fleet_that_joins_and_leaves_cleanly(tmp_path):
         for i, host in enumerate(others, start=1):
             log = tmp_path / f"{host.name}-fleet.log"
             procs.append(host.popen([*TWINMESH, "up", "fleet", "--fleet", str(per_host), "--fleet-first",
-                                     str(1 + i * per_host // 5), "--join", endpoint], log))
+                                     str(1 + i * per_host // 5), "--join", endpoint,
+                                     *(["--direct"] if direct else [])], log))
             logs.append(log)
         for log in logs:
             _ready(log, "a joining fleet")
+            assert ("linked straight to the lab's router" in log.read_text()) == direct
+        ps = others[0].run(["ps", "-o", "args=", "--ppid", str(procs[0].pid)]).stdout
+        assert ("twinmesh: router" in ps) != direct, ps
         everyone = {n for i in range(4) for n in fleet_names(per_host, 1 + i * per_host // 5)}
         assert len(everyone) == 4 * per_host
         _until("all 200 devices listed by the first host's adapter", lambda: everyone <= _listed(base), lab_log)

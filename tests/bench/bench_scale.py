@@ -11,10 +11,12 @@ processes (per process and per device) and of the whole lab; idle CPU of the who
 10 s (the climate sensors publish every second); `/things?limit=100` latency; readproperty
 p50/p99 to random devices over HTTP and over Zenoh; property-change fan-out to 10 SSE observers.
 
-    python tests/bench/bench_scale.py [--sizes 10,100,1000] [--large] [--only star] [--hosts 10] [--soak S]
+    python tests/bench/bench_scale.py [--sizes 10,100,1000] [--large] [--only star] [--hosts 10 [--direct]]
+                                      [--soak S]
 
 With `--hosts H` (root: Linux network namespaces, tests/netns.py) each fleet is spread over H hosts:
-the lab and its adapter on the first, `up fleet --join` on the others; figures sum all hosts.
+the lab and its adapter on the first, `up fleet --join` on the others (each with its router, or with
+`--direct` none: their devices link straight to the lab's router); figures sum all hosts.
 """
 from __future__ import annotations
 
@@ -184,10 +186,11 @@ def _wait_line(log: Path, proc: subprocess.Popen, pattern: str, started: float, 
 
 
 def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
-            limit: float = READY_LIMIT) -> dict:
+            limit: float = READY_LIMIT, direct: bool = False) -> dict:
     """One fleet of `n` devices; with `hosts` > 1, spread over that many network namespaces: the lab (and
     its adapter) on the first, `up fleet --join` on the others. With `soak` > 0, the lab then runs on that
-    many seconds more (the sensors publishing) while its RSS and descriptors are sampled."""
+    many seconds more (the sensors publishing) while its RSS and descriptors are sampled. `direct`: the
+    other hosts run no router, their devices link straight to the lab's router (`--join --direct`)."""
     from contextlib import ExitStack
 
     from twinmesh.things.fleet import KINDS, fleet_names
@@ -225,7 +228,8 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
             join_log = tmp / f"{topology}-{n}-host{i}.log"
             roots.append(net.hosts[i].popen(twinmesh_cmd("tcp/127.0.0.1:7447", *TOPOLOGIES[topology], "up", "fleet",
                                                          "--fleet", str(counts[i]), "--fleet-first", str(first),
-                                                         "--join", endpoint), join_log))
+                                                         "--join", endpoint, *(["--direct"] if direct else [])),
+                                             join_log))
             devices += fleet_names(counts[i], first)
         for i, root in enumerate(roots[1:], start=1):
             why = _wait_line(tmp / f"{topology}-{n}-host{i}.log", root, r"ready", started, limit)
@@ -254,7 +258,7 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
         drift = _soak(procs, soak) if soak > 0 else None
         return {"soak": drift, "ready": ready_s, **figures, "idle": idle, "things": statistics.median(things_ms),
                 "http": (_pct(http, 0.5), _pct(http, 0.99)), "zenoh": (_pct(zen, 0.5), _pct(zen, 0.99)),
-                "fan": (_pct(fan, 0.5), _pct(fan, 0.99), len(fan)), "hosts": hosts}
+                "fan": (_pct(fan, 0.5), _pct(fan, 0.99), len(fan)), "hosts": hosts, "direct": direct}
 
 
 def row(topology: str, n: int, r: dict) -> str:
@@ -264,7 +268,8 @@ def row(topology: str, n: int, r: dict) -> str:
     per_rss = sum(m for m, _, _ in fleet) / 2**20
     per_fds = sum(f for _, f, _ in fleet)
     per_thr = sum(t for _, _, t in fleet)
-    where = f" ({r['hosts']} hosts)" if r.get("hosts", 1) > 1 else ""
+    where = (f" ({r['hosts']} hosts{', direct' if r.get('direct') else ', a router each'})"
+             if r.get("hosts", 1) > 1 else "")
     return (f"| {topology}{where} | {n:,} | {r['ready']:.1f} s | {per_rss:.0f} MB / {per_fds:,} / {per_thr} "
             f"({len(fleet)} proc.) | {r['rss'] / 2**20:.0f} MB / {r['fds']:,} / {r['threads']} | {r['idle']:.1f} % | "
             f"{r['things']:.1f} ms | {r['http'][0]:.2f} / {r['http'][1]:.2f} ms | "
@@ -287,6 +292,8 @@ def main() -> None:
                     "running S seconds more and print its RSS and descriptors over that time")
     ap.add_argument("--hosts", type=int, default=1, help="spread each fleet over this many network namespaces "
                     "(needs root): the lab on the first, `up fleet --join` on the others")
+    ap.add_argument("--direct", action="store_true", help="with --hosts: the other hosts' devices link straight "
+                    "to the lab's router (`up fleet --join ENDPOINT --direct`), no router on those hosts")
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")] + ([10_000] if args.large else [])
     results: dict[str, dict[int, dict]] = {}
@@ -294,7 +301,7 @@ def main() -> None:
         for topology in [args.only] if args.only else list(TOPOLOGIES):
             results[topology] = {}
             for n in sizes:
-                r = measure(topology, n, Path(tmp), args.hosts, args.soak, args.ready_limit)
+                r = measure(topology, n, Path(tmp), args.hosts, args.soak, args.ready_limit, args.direct)
                 results[topology][n] = r
                 print(row(topology, n, r), flush=True)
                 if r.get("soak"):

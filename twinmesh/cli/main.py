@@ -166,10 +166,14 @@ READY_TIMEOUT = 600.0  # s `up` waits for every Thing of its scene before it giv
               help="Run only the scene's devices, for the lab whose router listens at ENDPOINT (another host's "
                    "`twinmesh --listen tcp/0.0.0.0:7447 up`): this host's router links to it; no adapter, "
                    "tdgen, recorder or view here.")
+@click.option("--direct", is_flag=True,
+              help="With --join: no router on this host; each device links straight to the lab's router "
+                   "(for fleets of thousands: routers linked together each hold every device's keys). A cut "
+                   "cable is then seen after 60 s instead of 1.5 s.")
 @click.pass_obj
 def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, http: str, no_http: bool,
        auth: str | None, record: str | None, view: str, no_view: bool, speed: str, samples: int | None,
-       tdgen_cache: str | None, fleet: int | None, fleet_first: int, join: str | None) -> None:
+       tdgen_cache: str | None, fleet: int | None, fleet_first: int, join: str | None, direct: bool) -> None:
     """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
 
     Scenes: iot-lab (default), iot-platform, ur10, lights, fleet (--fleet N virtual devices for load tests).
@@ -199,11 +203,13 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
         things = scene_things(scene, fleet=fleet, fleet_first=fleet_first)
     except KeyError as e:
         raise usage_exit(str(e.args[0])) from None
+    if direct and not join:
+        raise usage_exit("--direct is for --join ENDPOINT (this host's devices linked straight to that lab's router)")
     if zenoh_endpoint:
         settings = msgspec.structs.replace(settings, connect=(zenoh_endpoint,))
     token = _prepare_secrets(settings, things, joining=bool(join))
     if join:
-        _join_lab(settings, scene, specs, things, join)
+        _join_lab(settings, scene, specs, things, join, direct)
         return
     things = [TDGEN_THING, *things]
     address = None if no_http else _host_port(http)
@@ -280,21 +286,26 @@ def _prepare_secrets(settings: MeshSettings, things: list[str], joining: bool) -
         raise click.ClickException(str(e)) from None
 
 
-def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], things: list[str], join: str) -> None:
+def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], things: list[str], join: str,
+              direct: bool = False) -> None:
     """`up SCENE --join ENDPOINT`: this host's router (listening where this host's devices connect) linked
-    to the lab's router at ENDPOINT, and the scene's devices; ready once the lab sees them all."""
+    to the lab's router at ENDPOINT, and the scene's devices; ready once the lab sees them all. `direct`:
+    no router here, the devices are clients of the lab's router."""
     from twinmesh.lab.readiness import LabDied, PortTaken, free_or_problem, wait_ready
 
-    listen = router_listen(settings.listen, settings.connect)
-    try:
-        free_or_problem(listen, None)
-    except PortTaken as e:
-        raise click.ClickException(e.detail) from None
-    router = ProcessSpec("router", "twinmesh.fabric.session:run_router_process",
-                         {"listen": listen, "connect": [join]}, role=f"router (joins {join})")
-    local = msgspec.structs.replace(settings, listen=())
     lab = msgspec.structs.replace(settings, listen=(), connect=(join,))
-    sup = Supervisor(local, [router, *specs])
+    if direct:
+        listen: list[str] = []
+        sup = Supervisor(lab, specs)  # the devices' 60 s lease: the lab's router, busy, must not drop them
+    else:
+        listen = router_listen(settings.listen, settings.connect)
+        try:
+            free_or_problem(listen, None)
+        except PortTaken as e:
+            raise click.ClickException(e.detail) from None
+        router = ProcessSpec("router", "twinmesh.fabric.session:run_router_process",
+                             {"listen": listen, "connect": [join]}, role=f"router (joins {join})")
+        sup = Supervisor(msgspec.structs.replace(settings, listen=()), [router, *specs])
     set_title(f"up {scene} --join {join}")
     sup.start()
     try:
@@ -310,8 +321,8 @@ def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], thin
         sup.shutdown()
         raise click.ClickException(f"{e.detail} (is the lab at {join} running and listening there?); stopped") \
             from None
-    click.echo(f"twinmesh '{scene}' joined the lab at {join}, ready: {len(things)} Things, this host's router on "
-               f"{', '.join(listen)}  (Ctrl-C to stop)")
+    where = f"this host's router on {', '.join(listen)}" if listen else "linked straight to the lab's router"
+    click.echo(f"twinmesh '{scene}' joined the lab at {join}, ready: {len(things)} Things, {where}  (Ctrl-C to stop)")
     sys.exit(sup.run_until_stopped())
 
 

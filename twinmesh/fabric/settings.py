@@ -23,7 +23,8 @@ JOINING_LEASE_MS = 1500
 # a link is expired only after 60 s of silence, and a keep-alive goes every 15 s. A process on the
 # same host that dies closes its socket, which the other end sees at once; but a router busy with
 # thousands of sessions starting may send or read a keep-alive late, and must not drop a healthy
-# client for it (which then reconnects and declares everything again, as 10,000 devices did).
+# client for it (which then reconnects and declares everything again, as 10,000 devices did; and
+# devices of other hosts linked straight to the lab's router, `up --join --direct`, with a 10 s lease).
 LOCAL_LEASE_MS = 60_000
 ROUTER_MAX_SESSIONS = 100_000  # Zenoh's default (1,000) would cap a host at 1,000 devices
 # Zenoh closes a dead link's TCP socket with a 10 s linger, synchronously, on one of its 2 receive
