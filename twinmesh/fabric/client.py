@@ -38,6 +38,9 @@ class MeshClient:
     def __init__(self, session, settings: MeshSettings | None = None):
         self.session = session
         self.settings = settings or MeshSettings()
+        # a Directory the owner keeps (the adapter, tdgen): who is alive is known without asking the
+        # router, which lists every token of the mesh to answer one liveliness query
+        self.presence: Any = None
         self.keys: Keys = self.settings.keys
 
     # --- discovery ---------------------------------------------------------------------
@@ -56,6 +59,8 @@ class MeshClient:
                     yield parsed.thing
 
     def is_alive(self, thing: str, timeout: float = 1.0) -> bool:
+        if self.presence is not None:
+            return bool(self.presence.is_alive(thing))
         return any(r.ok is not None for r in self.session.liveliness().get(self.keys.alive(thing), timeout=timeout))
 
     # --- raw requests ------------------------------------------------------------------

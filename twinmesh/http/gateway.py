@@ -104,7 +104,9 @@ class Registry:
         self._declared.append(await self.call(
             Drained, functools.partial(session.declare_subscriber, self.keys.everything()), self._samples,
             PUBLICATIONS_WAITING, True, "adapter-publications"))
-        self._declared.append(await self.call(Directory, self._presence, self.keys, self._joined, self._left))
+        directory = await self.call(Directory, self._presence, self.keys, self._joined, self._left)
+        self._declared.append(directory)
+        self.client.presence = directory
 
     def begin_shutdown(self) -> None:
         """End long-polls and SSE streams now, so that the server can stop with them open."""
