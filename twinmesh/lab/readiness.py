@@ -121,11 +121,19 @@ def serve_status(session, settings: MeshSettings, status: LabStatus):
 
 
 TD_QUERIES_AT_ONCE = 16
+# A round asks at most this many TDs, and a live Thing that did not answer is left alone for a few
+# seconds: ten hosts of 1,000 devices each joining a lab, each asking every silent TD again every
+# 0.2 s, kept the lab's router too busy to take the sessions still coming (Zenoh 1.10 matches every
+# query against every key it holds).
+TDS_PER_ROUND = 256
+QUIET_AFTER_SILENCE = 3.0  # s
 
 
-def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[str] | None = None) -> list[str]:
+def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[str] | None = None,
+                most: int | None = None) -> list[str]:
     """The Things among `things` that do not answer their TD now. A Thing not alive (`alive`, else one
-    liveliness query) is missing without waiting `timeout` for its TD (a fleet of thousands starts)."""
+    liveliness query) is missing without waiting `timeout` for its TD (a fleet of thousands starts).
+    `most`: ask at most that many TDs; the other live ones count as missing (asked in a later round)."""
     things = list(things)
     if alive is None:
         try:
@@ -142,6 +150,9 @@ def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[
         return True
 
     asked = [t for t in things if t in alive]
+    if most is not None and len(asked) > most:
+        missing += asked[most:]
+        asked = asked[:most]
     if asked:
         with ThreadPoolExecutor(min(TD_QUERIES_AT_ONCE, len(asked))) as pool:  # a fleet: thousands of TDs
             missing += [t for t, ok in zip(asked, pool.map(answers, asked)) if not ok]
@@ -203,6 +214,7 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
     deadline = time.monotonic() + timeout
     missing: list[str] = list(things or ["the lab's status"])
     answered: set[str] = set()  # Things that answered their TD once: not asked again
+    quiet: dict[str, float] = {}  # a live Thing whose TD did not come: not asked again until then
     said = time.monotonic()
     while True:
         dead = alive()
@@ -220,9 +232,16 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                             return status
                         missing = ["the lab's status"] if status is None else status.things
                     else:
-                        missing = missing_tds(client, [t for t in things if t not in answered],
-                                              alive=None if present is None else set(present.alive()))
-                        answered.update(t for t in things if t not in missing)
+                        now = time.monotonic()
+                        due = [t for t in things if t not in answered and quiet.get(t, 0.0) <= now]
+                        alive_now = None if present is None else set(present.alive())
+                        missing = missing_tds(client, due, alive=alive_now, most=TDS_PER_ROUND)
+                        silent = set(missing)
+                        answered.update(t for t in due if t not in silent)
+                        if alive_now is not None:  # the TDs asked and not given: left alone a while
+                            asked = [t for t in due if t in alive_now][:TDS_PER_ROUND]
+                            quiet.update((t, now + QUIET_AFTER_SILENCE) for t in asked if t in silent)
+                        missing = [t for t in things if t not in answered]
                         if not missing and TDGEN_THING in things:
                             missing = unready_workspaces(client, things)
                         if not missing and http is not None:
