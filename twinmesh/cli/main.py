@@ -135,7 +135,12 @@ def _host_port(value: str) -> tuple[str, int]:
 
 
 # --- running a lab ----------------------------------------------------------------------------
-READY_TIMEOUT = 600.0  # s `up` waits for every Thing of its scene before it gives up
+READY_TIMEOUT = 600.0  # s `up` waits for every Thing of its scene before it gives up, and per Thing:
+READY_TIMEOUT_PER_THING = 0.06  # a lab's router takes sessions ever more slowly (10,000 devices: 340 s)
+
+
+def _ready_timeout(things: list[str]) -> float:
+    return READY_TIMEOUT + READY_TIMEOUT_PER_THING * len(things)
 
 
 @main.command()
@@ -238,7 +243,7 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     sup.start()
     url = None if address is None else f"http://{address[0]}:{address[1]}/"
     try:
-        wait_ready(peers, lambda: _lab_client(peers), things, READY_TIMEOUT,
+        wait_ready(peers, lambda: _lab_client(peers), things, _ready_timeout(things),
                    alive=lambda: "stopped" if sup.stop.is_set() else sup.dead(),
                    progress=lambda text: click.echo(f"twinmesh up: {text}", err=True), http=url)
     except LabDied as e:
@@ -309,7 +314,7 @@ def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], thin
     set_title(f"up {scene} --join {join}")
     sup.start()
     try:
-        wait_ready(lab, lambda: _lab_client(lab), things, READY_TIMEOUT,
+        wait_ready(lab, lambda: _lab_client(lab), things, _ready_timeout(things),
                    alive=lambda: "stopped" if sup.stop.is_set() else sup.dead(),
                    progress=lambda text: click.echo(f"twinmesh up: {text}", err=True))
     except LabDied as e:
