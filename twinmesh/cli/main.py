@@ -139,6 +139,11 @@ READY_TIMEOUT = 600.0  # s `up` waits for every Thing of its scene before it giv
 READY_TIMEOUT_PER_THING = 0.06  # a lab's router takes sessions ever more slowly (10,000 devices: 340 s)
 
 
+# A host joining a lab waits longer: the lab's router takes the sessions of every host joining, and
+# it takes them ever more slowly (9 hosts of 1,000 devices joining a lab of 1,000: 15 minutes).
+JOIN_READY_TIMEOUT = 1800.0
+
+
 def _ready_timeout(things: list[str]) -> float:
     return READY_TIMEOUT + READY_TIMEOUT_PER_THING * len(things)
 
@@ -314,7 +319,7 @@ def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], thin
     set_title(f"up {scene} --join {join}")
     sup.start()
     try:
-        wait_ready(lab, lambda: _lab_client(lab), things, _ready_timeout(things),
+        wait_ready(lab, lambda: _lab_client(lab), things, max(JOIN_READY_TIMEOUT, _ready_timeout(things)),
                    alive=lambda: "stopped" if sup.stop.is_set() else sup.dead(),
                    progress=lambda text: click.echo(f"twinmesh up: {text}", err=True))
     except LabDied as e:
