@@ -13,6 +13,7 @@ from typing import Any, Callable, Iterator
 
 import msgspec
 
+from twinmesh.fabric.directory import Directory
 from twinmesh.fabric.keys import Keys
 from twinmesh.fabric.settings import MeshSettings
 from twinmesh.wot.consumed import NOTHING, Callback
@@ -40,7 +41,7 @@ class MeshClient:
         self.settings = settings or MeshSettings()
         # a Directory the owner keeps (the adapter, tdgen): who is alive is known without asking the
         # router, which lists every token of the mesh to answer one liveliness query
-        self.presence: Any = None
+        self.presence: Directory | None = None
         self.keys: Keys = self.settings.keys
 
     # --- discovery ---------------------------------------------------------------------
@@ -60,7 +61,7 @@ class MeshClient:
 
     def is_alive(self, thing: str, timeout: float = 1.0) -> bool:
         if self.presence is not None:
-            return bool(self.presence.is_alive(thing))
+            return self.presence.is_alive(thing)
         return any(r.ok is not None for r in self.session.liveliness().get(self.keys.alive(thing), timeout=timeout))
 
     # --- raw requests ------------------------------------------------------------------

@@ -129,11 +129,9 @@ TDS_PER_ROUND = 256
 QUIET_AFTER_SILENCE = 3.0  # s
 
 
-def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[str] | None = None,
-                most: int | None = None) -> list[str]:
+def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[str] | None = None) -> list[str]:
     """The Things among `things` that do not answer their TD now. A Thing not alive (`alive`, else one
-    liveliness query) is missing without waiting `timeout` for its TD (a fleet of thousands starts).
-    `most`: ask at most that many TDs; the other live ones count as missing (asked in a later round)."""
+    liveliness query) is missing without waiting `timeout` for its TD (a fleet of thousands starts)."""
     things = list(things)
     if alive is None:
         try:
@@ -150,9 +148,6 @@ def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[
         return True
 
     asked = [t for t in things if t in alive]
-    if most is not None and len(asked) > most:
-        missing += asked[most:]
-        asked = asked[:most]
     if asked:
         with ThreadPoolExecutor(min(TD_QUERIES_AT_ONCE, len(asked))) as pool:  # a fleet: thousands of TDs
             missing += [t for t, ok in zip(asked, pool.map(answers, asked)) if not ok]
@@ -232,15 +227,13 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                             return status
                         missing = ["the lab's status"] if status is None else status.things
                     else:
-                        now = time.monotonic()
-                        due = [t for t in things if t not in answered and quiet.get(t, 0.0) <= now]
-                        alive_now = None if present is None else set(present.alive())
-                        missing = missing_tds(client, due, alive=alive_now, most=TDS_PER_ROUND)
-                        silent = set(missing)
-                        answered.update(t for t in due if t not in silent)
-                        if alive_now is not None:  # the TDs asked and not given: left alone a while
-                            asked = [t for t in due if t in alive_now][:TDS_PER_ROUND]
-                            quiet.update((t, now + QUIET_AFTER_SILENCE) for t in asked if t in silent)
+                        assert present is not None
+                        now, alive_now = time.monotonic(), set(present.alive())
+                        asked = [t for t in things if t not in answered and t in alive_now
+                                 and quiet.get(t, 0.0) <= now][:TDS_PER_ROUND]
+                        silent = set(missing_tds(client, asked, alive=alive_now))
+                        answered.update(t for t in asked if t not in silent)
+                        quiet.update((t, now + QUIET_AFTER_SILENCE) for t in silent)  # left alone a while
                         missing = [t for t in things if t not in answered]
                         if not missing and TDGEN_THING in things:
                             missing = unready_workspaces(client, things)
