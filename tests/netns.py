@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import itertools
 import os
+import re
 import shutil
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -69,12 +71,48 @@ class Network:
         _ip("link", "set", host.veth, "up")
 
 
+def _sweep() -> None:
+    """Remove what test runs that were killed (no `finally`) left behind: their hosts' processes,
+    namespaces and bridges. Their names carry the pid of the run that made them."""
+    for line in _ip("netns", "list").stdout.splitlines():
+        ns = line.split()[0] if line.split() else ""
+        m = re.fullmatch(r"tm(\d+)c\dh\d+", ns)
+        if m and not _running(int(m.group(1))):
+            pids = subprocess.run(["ip", "netns", "pids", ns], capture_output=True, text=True).stdout.split()
+            for pid in pids:
+                try:
+                    os.kill(int(pid), signal.SIGKILL)
+                except (ProcessLookupError, ValueError):
+                    pass
+            _ip("netns", "del", ns, check=False)
+    for line in _ip("-o", "link", "show", "type", "bridge").stdout.splitlines():
+        m = re.match(r"\d+: (tmbr(\d+)c\d)[:@]", line)
+        if m and not _running(int(m.group(2))):
+            _ip("link", "del", m.group(1), check=False)
+
+
+def _running(pid: int) -> bool:
+    return pid == os.getpid() or Path(f"/proc/{pid}").exists()
+
+
+def _free_net(start: int) -> int:
+    """A 10.<net>.0.0/24 (net 100..199) that no interface of this namespace has: a bridge on the same
+    subnet (another run's) takes the test's packets to its hosts ("No route to host")."""
+    taken = set(re.findall(r"inet 10\.(\d+)\.", _ip("-4", "-o", "addr").stdout))
+    for i in range(100):
+        net = 100 + (start + i) % 100
+        if str(net) not in taken:
+            return net
+    raise RuntimeError("no free 10.x.0.0/24 subnet for test hosts (100..199 all in use)")
+
+
 @contextmanager
 def hosts(n: int, net: int | None = None) -> Iterator[Network]:
     """`n` hosts on one bridge; everything (processes, namespaces, bridge) is removed afterwards."""
     call = next(_calls)  # names of their own: a namespace a failed test left behind for a moment collides with none
-    tag = f"{os.getpid() % 100000}c{call % 10}"
-    net = net if net is not None else 100 + (os.getpid() + call) % 100
+    tag = f"{os.getpid()}c{call % 10}"  # at most 7 + 2 digits: names stay within Linux's 15 characters
+    _sweep()
+    net = net if net is not None else _free_net(os.getpid() + call)
     bridge = f"tmbr{tag}"
     made: list[Host] = []
     try:

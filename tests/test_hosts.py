@@ -52,6 +52,20 @@ def _lab(host: netns.Host, tmp: Path, *args: str) -> tuple[str, str, Path]:
     return endpoint, base, log
 
 
+def _why_unlisted(base: str, missing: set[str], log: Path) -> str:
+    """What the adapter answers for Things it does not list, and what its log says of them."""
+    lines = [f"{len(missing)} not listed: {sorted(missing)[:20]}"]
+    text = log.read_text(errors="replace")
+    for name in sorted(missing)[:5]:
+        try:
+            r = httpx.get(f"{base}/{name}", timeout=10)
+            lines.append(f"GET /{name}: {r.status_code} {r.text[:200]}")
+        except httpx.HTTPError as e:
+            lines.append(f"GET /{name}: {e!r}")
+        lines += [f"  log: {line}" for line in text.splitlines() if name in line][-5:]
+    return "\n".join(lines + ["lab log tail:", text[-2000:]])
+
+
 def _ready(log: Path, what: str) -> None:
     _until(f"{what} ready", lambda: " ready" in log.read_text(errors="replace"), log, timeout=300)
 
@@ -129,7 +143,10 @@ def test_four_hosts_make_one_fleet_that_joins_and_leaves_cleanly(tmp_path, direc
         assert ("twinmesh: router" in ps) != direct, ps
         everyone = {n for i in range(4) for n in fleet_names(per_host, 1 + i * per_host // 5)}
         assert len(everyone) == 4 * per_host
-        _until("all 200 devices listed by the first host's adapter", lambda: everyone <= _listed(base), lab_log)
+        try:
+            _until("all 200 devices listed by the first host's adapter", lambda: everyone <= _listed(base))
+        except AssertionError as e:
+            raise AssertionError(f"{e}\n{_why_unlisted(base, everyone - _listed(base), lab_log)}") from None
         r = httpx.get(f"{base}/things?limit=50", timeout=30)
         assert r.status_code == 200 and 'rel="next"' in r.headers["link"]
         # a device of the last host answers through the first host's adapter

@@ -322,7 +322,7 @@ def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], thin
     try:
         wait_ready(lab, lambda: _lab_client(lab), things, max(JOIN_READY_TIMEOUT, _ready_timeout(things)),
                    alive=lambda: "stopped" if sup.stop.is_set() else sup.dead(),
-                   progress=lambda text: click.echo(f"twinmesh up: {text}", err=True))
+                   progress=lambda text: click.echo(f"twinmesh up: {text}", err=True), follow=False)
     except LabDied as e:
         sup.shutdown()
         if e.detail == "stopped":

@@ -197,14 +197,17 @@ def missing_over_http(base_url: str, things: Iterable[str]) -> list[str]:
 
 def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] | None, timeout: float,
                alive: Callable[[], str | None] = lambda: None, progress: Callable[[str], None] = lambda _: None,
-               http: str | None = None) -> LabStatus | None:
+               http: str | None = None, follow: bool = True) -> LabStatus | None:
     """Poll until the lab is ready; returns its status, or raises Unavailable naming what is missing.
 
     `open_client()` is a context manager giving a MeshClient (it raises Unavailable while no router
     answers). With `things`, ready means they all answer their TD, the robots among them have their
     workspaces (when the tdgen service is one of them), and `http`, if given, lists them;
     without, it means the lab's status key says so. `alive()` names a lab process that died (stop
-    waiting at once).
+    waiting at once). `follow`: learn who is alive from a liveliness subscription to the whole mesh
+    (the lab's own `up`); without, each Thing is asked its TD until it answers (a host joining a
+    lab: a Zenoh client that follows every token of a mesh of N spends O(N) on each one that joins,
+    and ten joining hosts did that beside the lab's router on the same cores).
     """
     deadline = time.monotonic() + timeout
     missing: list[str] = list(things or ["the lab's status"])
@@ -216,7 +219,7 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
         if dead:
             raise LabDied(dead)
         try:
-            with open_client() as client, _presence(client, things is not None) as present:
+            with open_client() as client, _presence(client, things is not None and follow) as present:
                 while True:
                     dead = alive()
                     if dead:
@@ -227,8 +230,8 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                             return status
                         missing = ["the lab's status"] if status is None else status.things
                     else:
-                        assert present is not None
-                        now, alive_now = time.monotonic(), set(present.alive())
+                        now = time.monotonic()
+                        alive_now = set(present.alive()) if present is not None else set(things)
                         asked = [t for t in things if t not in answered and t in alive_now
                                  and quiet.get(t, 0.0) <= now][:TDS_PER_ROUND]
                         silent = set(missing_tds(client, asked, alive=alive_now))
