@@ -154,6 +154,27 @@ def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[
     return missing
 
 
+def answered_in_order(client, things: list[str], timeout: float = 1.0, at_once: int = TD_QUERIES_AT_ONCE,
+                      most: int = TDS_PER_ROUND) -> list[str]:
+    """The Things at the head of `things` that answer their TD now, asked `at_once` at a time in order
+    and no further than the first batch with a silent one: devices start in order, so the Things after
+    it most likely are not up either, and every query costs the lab's router a match against all the
+    keys it holds (a joining host asking 1,000 absent TDs a second slowed the sessions still coming)."""
+    out: list[str] = []
+
+    def answers(thing: str) -> bool:
+        return any(r.ok is not None for r in client.session.get(client.keys.td(thing), timeout=timeout))
+
+    with ThreadPoolExecutor(at_once) as pool:
+        for start in range(0, min(len(things), most), at_once):
+            batch = things[start:start + at_once]
+            oks = list(pool.map(answers, batch))
+            out += [t for t, ok in zip(batch, oks) if ok]
+            if not all(oks):
+                break
+    return out
+
+
 def unready_workspaces(client, things: Iterable[str], timeout: float = 1.0) -> list[str]:
     """The robots among `things` (Things that link their twin.json) whose workspace the tdgen service
     has not generated yet, with how far its sampling is: a robot is not ready for Cartesian moves
@@ -205,14 +226,15 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
     workspaces (when the tdgen service is one of them), and `http`, if given, lists them;
     without, it means the lab's status key says so. `alive()` names a lab process that died (stop
     waiting at once). `follow`: learn who is alive from a liveliness subscription to the whole mesh
-    (the lab's own `up`); without, each Thing is asked its TD until it answers (a host joining a
-    lab: a Zenoh client that follows every token of a mesh of N spends O(N) on each one that joins,
-    and ten joining hosts did that beside the lab's router on the same cores).
+    (the lab's own `up`); without, the Things are asked their TDs in order (`answered_in_order`): a
+    host joining a lab, whose Zenoh client would otherwise follow every token of a mesh of N and
+    spend O(N) on each one that joins (ten joining hosts did, on the lab router's cores).
     """
     deadline = time.monotonic() + timeout
     missing: list[str] = list(things or ["the lab's status"])
     answered: set[str] = set()  # Things that answered their TD once: not asked again
     quiet: dict[str, float] = {}  # a live Thing whose TD did not come: not asked again until then
+    pause = 0.2  # s between rounds
     said = time.monotonic()
     while True:
         dead = alive()
@@ -230,13 +252,18 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                             return status
                         missing = ["the lab's status"] if status is None else status.things
                     else:
-                        now = time.monotonic()
-                        alive_now = set(present.alive()) if present is not None else set(things)
-                        asked = [t for t in things if t not in answered and t in alive_now
-                                 and quiet.get(t, 0.0) <= now][:TDS_PER_ROUND]
-                        silent = set(missing_tds(client, asked, alive=alive_now))
-                        answered.update(t for t in asked if t not in silent)
-                        quiet.update((t, now + QUIET_AFTER_SILENCE) for t in silent)  # left alone a while
+                        now, before = time.monotonic(), len(answered)
+                        if present is not None:
+                            alive_now = set(present.alive())
+                            asked = [t for t in things if t not in answered and t in alive_now
+                                     and quiet.get(t, 0.0) <= now][:TDS_PER_ROUND]
+                            silent = set(missing_tds(client, asked, alive=alive_now))
+                            answered.update(t for t in asked if t not in silent)
+                            quiet.update((t, now + QUIET_AFTER_SILENCE) for t in silent)  # left alone a while
+                        else:
+                            answered.update(answered_in_order(client, [t for t in things if t not in answered]))
+                        # asking in order and nothing new: ask less often (up to every 2 s)
+                        pause = 0.2 if present is not None or len(answered) > before else min(pause * 2, 2.0)
                         missing = [t for t in things if t not in answered]
                         if not missing and TDGEN_THING in things:
                             missing = unready_workspaces(client, things)
@@ -249,7 +276,7 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                     if time.monotonic() - said >= PROGRESS_EVERY:
                         progress(f"still waiting for {_some(missing)}")
                         said = time.monotonic()
-                    time.sleep(0.2)
+                    time.sleep(pause)
         except LabDied:
             raise
         except Unavailable:  # no router yet
