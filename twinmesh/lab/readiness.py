@@ -129,9 +129,11 @@ TDS_PER_ROUND = 256
 QUIET_AFTER_SILENCE = 3.0  # s
 
 
-def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[str] | None = None) -> list[str]:
+def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[str] | None = None,
+                robots: set[str] | None = None) -> list[str]:
     """The Things among `things` that do not answer their TD now. A Thing not alive (`alive`, else one
-    liveliness query) is missing without waiting `timeout` for its TD (a fleet of thousands starts)."""
+    liveliness query) is missing without waiting `timeout` for its TD (a fleet of thousands starts).
+    The robots among those that answered go into `robots`."""
     things = list(things)
     if alive is None:
         try:
@@ -142,9 +144,10 @@ def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[
 
     def answers(thing: str) -> bool:
         try:
-            client.request(client.keys.td(thing), timeout=timeout, thing=thing)
+            reply = client.request(client.keys.td(thing), timeout=timeout, thing=thing)
         except Problem:
             return False
+        _note_robot(thing, reply.payload, robots)
         return True
 
     asked = [t for t in things if t in alive]
@@ -154,16 +157,22 @@ def missing_tds(client, things: Iterable[str], timeout: float = 1.0, alive: set[
     return missing
 
 
-def answered_in_order(client, things: list[str], timeout: float = 1.0, at_once: int = TD_QUERIES_AT_ONCE,
-                      most: int = TDS_PER_ROUND) -> list[str]:
+def answered_in_order(client, things: list[str], timeout: float = 5.0, at_once: int = TD_QUERIES_AT_ONCE,
+                      most: int = TDS_PER_ROUND, robots: set[str] | None = None) -> list[str]:
     """The Things at the head of `things` that answer their TD now, asked `at_once` at a time in order
     and no further than the first batch with a silent one: devices start in order, so the Things after
     it most likely are not up either, and every query costs the lab's router a match against all the
-    keys it holds (a joining host asking 1,000 absent TDs a second slowed the sessions still coming)."""
+    keys it holds (a joining host asking 1,000 absent TDs a second slowed the sessions still coming).
+    An absent Thing is silent at once (nothing serves its key); `timeout` is for a busy one. The
+    robots among those that answered go into `robots`."""
     out: list[str] = []
 
     def answers(thing: str) -> bool:
-        return any(r.ok is not None for r in client.session.get(client.keys.td(thing), timeout=timeout))
+        for r in client.session.get(client.keys.td(thing), timeout=timeout):
+            if r.ok is not None:
+                _note_robot(thing, r.ok.payload.to_bytes(), robots)
+                return True
+        return False
 
     with ThreadPoolExecutor(at_once) as pool:
         for start in range(0, min(len(things), most), at_once):
@@ -175,18 +184,32 @@ def answered_in_order(client, things: list[str], timeout: float = 1.0, at_once: 
     return out
 
 
-def unready_workspaces(client, things: Iterable[str], timeout: float = 1.0) -> list[str]:
-    """The robots among `things` (Things that link their twin.json) whose workspace the tdgen service
-    has not generated yet, with how far its sampling is: a robot is not ready for Cartesian moves
-    before. A failed generation does not hold the lab up (the robot says why on each such move)."""
-    robots = []
-    for thing in things:
-        try:
-            td = client.td(thing)
-        except Problem:
-            return [thing]
-        if any(link.rel == relations.TWIN for link in td.links):
-            robots.append(thing)
+def _note_robot(thing: str, td: bytes, robots: set[str] | None) -> None:
+    """Add `thing` to `robots` if its TD links its twin (tdgen generates its workspace)."""
+    if robots is None:
+        return
+    try:
+        links = msgspec.json.decode(td, type=_Links).links
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        return
+    if any(link.rel == relations.TWIN for link in links):
+        robots.add(thing)
+
+
+class _Link(msgspec.Struct):
+    rel: str | None = None
+
+
+class _Links(msgspec.Struct):
+    links: list[_Link] = []
+
+
+def unready_workspaces(client, robots: Iterable[str]) -> list[str]:
+    """The `robots` whose workspace the tdgen service has not generated yet, with how far its sampling
+    is: a robot is not ready for Cartesian moves before. A failed generation does not hold the lab
+    up (the robot says why on each such move). The robots come from the TDs readiness asked anyway:
+    asking every Thing's TD again on every round took a fleet of 10,000 three minutes."""
+    robots = list(robots)
     if not robots:
         return []
     try:
@@ -235,6 +258,7 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
     answered: set[str] = set()  # Things that answered their TD once: not asked again
     quiet: dict[str, float] = {}  # a live Thing whose TD did not come: not asked again until then
     pause = 0.2  # s between rounds
+    robots: set[str] = set()  # Things whose TD links a twin: ready once tdgen generated their workspace
     said = time.monotonic()
     while True:
         dead = alive()
@@ -257,16 +281,17 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                             alive_now = set(present.alive())
                             asked = [t for t in things if t not in answered and t in alive_now
                                      and quiet.get(t, 0.0) <= now][:TDS_PER_ROUND]
-                            silent = set(missing_tds(client, asked, alive=alive_now))
+                            silent = set(missing_tds(client, asked, alive=alive_now, robots=robots))
                             answered.update(t for t in asked if t not in silent)
                             quiet.update((t, now + QUIET_AFTER_SILENCE) for t in silent)  # left alone a while
                         else:
-                            answered.update(answered_in_order(client, [t for t in things if t not in answered]))
+                            answered.update(answered_in_order(client, [t for t in things if t not in answered],
+                                                              settings.query_timeout, robots=robots))
                         # asking in order and nothing new: ask less often (up to every 2 s)
                         pause = 0.2 if present is not None or len(answered) > before else min(pause * 2, 2.0)
                         missing = [t for t in things if t not in answered]
                         if not missing and TDGEN_THING in things:
-                            missing = unready_workspaces(client, things)
+                            missing = unready_workspaces(client, sorted(robots))
                         if not missing and http is not None:
                             missing = [f"{t} (over HTTP)" for t in missing_over_http(http, things)]
                         if not missing:
