@@ -7,11 +7,12 @@ import threading
 from contextlib import ExitStack, contextmanager
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
-from twinmesh.fabric.settings import ROUTER_RUNTIME, MeshSettings
+from twinmesh.fabric.settings import OPEN_ATTEMPT_MS, ROUTER_RUNTIME, MeshSettings
 
 if TYPE_CHECKING:
     import zenoh
 
+log = logging.getLogger(__name__)
 _log_once = threading.Lock()
 _log_done = False
 
@@ -34,15 +35,31 @@ def open_session(settings: MeshSettings, thing: str | None = None, service: bool
     In a secure lab the session authenticates as the device `thing` (a Thing's own session: it may
     serve only that Thing's keys), as a service (the adapter, tdgen, the recorder), or else as the
     settings' role (a consumer)."""
-    import zenoh
 
     _init_logging()
     if thing is not None:
         settings = settings.as_role(f"device:{thing}")
     elif service:
         settings = settings.as_role("service")
-    with zenoh.open(settings.zenoh_config()) as session:
+    with _open_until_connected(settings, thing or ("a service" if service else settings.role)) as session:
         yield session
+
+
+def _open_until_connected(settings: MeshSettings, who: str) -> "zenoh.Session":
+    """`zenoh.open`, tried again while a part that waits for its router gets no session within an
+    attempt (`OPEN_ATTEMPT_MS`): the router is not up yet, or a handshake hung."""
+    import zenoh
+
+    attempts = 0
+    while True:
+        try:
+            return zenoh.open(settings.zenoh_config())
+        except zenoh.ZError as e:
+            if not (settings.mode == "client" and settings.wait_for_router):
+                raise
+            attempts += 1
+            log.warning("%s: no session with the router at %s after %d attempt(s) of %d s (%s); trying again",
+                        who, ", ".join(settings.connect), attempts, OPEN_ATTEMPT_MS // 1000, e)
 
 
 def direct(callback: Callable[[Any], None]):

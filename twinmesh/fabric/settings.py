@@ -32,6 +32,10 @@ ROUTER_MAX_SESSIONS = 100_000  # Zenoh's default (1,000) would cap a host at 1,0
 # both, and the lab's router forwarded nothing for 5-10 s, its own devices' reads included. The
 # router gets 16 receive threads: as many links can die at once before one healthy link waits.
 ROUTER_RUNTIME = "(rx: (worker_threads: 16))"  # Zenoh's runtime settings (ZENOH_RUNTIME), for routers
+# A part's session waits for its router at most this long per attempt, then `open_session` tries
+# again: one of 10,000 devices joining a busy router hung in its handshake (an answer from the router
+# left unread in its socket) and, with no bound, it waited for ever and its host never became ready.
+OPEN_ATTEMPT_MS = 30_000
 RETRY_MS = (250, 1000)  # a device reconnects this fast after its router came back (first, longest pause)
 
 
@@ -46,8 +50,8 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     link and one descriptor per device, whatever the number of devices), not a *peer* (peers link
     to every other peer: N²/2 links). Shared memory is off unless asked for: the mesh carries small
     JSON, and each shared-memory link costs segments and descriptors (with it, a router took
-    only 350 local sessions). `wait_for_router`: a lab's parts wait (retrying every 0.25..1 s) for
-    their router, which starts beside them and may restart; one-shot commands fail at once.
+    only 350 local sessions). `wait_for_router`: a lab's parts wait (retrying every 0.25..1 s, a new
+    session every 30 s) for their router, which starts beside them and may restart; one-shot commands fail at once.
 
     `secrets` (a directory, `twinmesh.fabric.secrets`): the lab is secure: TLS with mutual
     authentication on every link (`tcp/` endpoints become `tls/`), the router applies access
@@ -93,7 +97,8 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
         if self.mode != "peer":  # peers keep Zenoh's defaults: the old topology, measured as it was
             conf.insert_json5("transport/link/tx/lease", json.dumps(lease))
         if self.mode == "client" and self.wait_for_router:
-            conf.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": -1}))
+            conf.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": OPEN_ATTEMPT_MS}))
+            conf.insert_json5("connect/exit_on_failure", json.dumps({"router": False, "peer": False, "client": True}))
         if self.mode == "router":
             conf.insert_json5("transport/unicast/max_sessions", json.dumps(ROUTER_MAX_SESSIONS))
         return conf
