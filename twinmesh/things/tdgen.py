@@ -40,7 +40,7 @@ from twinmesh.fabric.server import ExposedThing
 from twinmesh.fabric.settings import MeshSettings
 from twinmesh.messages.scene import TWIN_REL, TwinDescription
 from twinmesh.wot import units
-from twinmesh.wot.problem import NotFound, Problem, Unavailable
+from twinmesh.wot.problem import NotFound, Problem, TimedOut, Unavailable
 from twinmesh.wot.td import ThingDescription, decode_td, thing_id
 
 log = logging.getLogger(__name__)
@@ -215,12 +215,13 @@ class TdgenService:
         self.request(twin)
 
     def _fetch_td(self, thing: str, attempts: int = 8) -> ThingDescription:
-        """A peer that just joined may not be reachable by queries yet: retry with backoff."""
+        """A peer that just joined may not be reachable by queries yet, and a router taking thousands of
+        sessions may answer late (a TD timed out while 10,000 devices joined): retry with backoff."""
         delay = 0.05
         for attempt in range(attempts):
             try:
                 return self.client.td(thing)
-            except Unavailable:
+            except (Unavailable, TimedOut):
                 if attempt == attempts - 1:
                     raise
                 time.sleep(delay)
