@@ -31,6 +31,7 @@ class RobotModel(msgspec.Struct, omit_defaults=True):
     name: str
     urdf: str                     # file name under the world Thing's files/, e.g. "uarm.urdf"
     base: Pose
+    urdf_dir: str | None = None   # the URDF's folder on the world's host: where its meshes are found
 
 
 class Body(msgspec.Struct, omit_defaults=True):
@@ -79,6 +80,7 @@ class TwinDescription(msgspec.Struct, omit_defaults=True, kw_only=True):
     urdf: str
     urdf_sha256: str
     urdf_file: str = "robot.urdf"               # the same URDF served as files/<urdf_file>
+    urdf_dir: str | None = None                 # the URDF's folder on the robot's host: where its meshes are found
     base: Pose                                  # the robot base in the scene frame (yaw in q)
     ee: str | None = None
     base_link: str | None = None                # where the arm chain starts (None: the URDF's root)

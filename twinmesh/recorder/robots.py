@@ -42,7 +42,6 @@ from twinmesh.messages import relations
 from twinmesh.messages.scene import MODEL_REL, TWIN_FILE, TWIN_REL, Pose, TwinDescription
 from twinmesh.recorder.mapping import Entry
 from twinmesh.recorder.scene import BATCH_AGE, BATCH_ROWS, WORLD, Robot, SampleBatch, SceneDrawer, thing_robot_path
-from twinmesh.robot.model import ROBOTS_DIR
 from twinmesh.wot import units
 from twinmesh.wot.td import ThingDescription
 
@@ -63,12 +62,14 @@ _REVOLUTE, _PRISMATIC = _UNITS["deg"], _UNITS["mm"]  # SPEC §4's units when a T
 
 
 # --- what a robot Thing's TD and files say ---------------------------------------------------------
-def urdf_dir(reference: str) -> Path | None:
-    """The folder of a twin's URDF on this machine (`urdf` of twin.json: a path, a name under the
-    shipped models, or a pybullet_data path), where its meshes are looked for; None if not here."""
+def urdf_dir(twin: TwinDescription) -> Path | None:
+    """The folder of a twin's URDF on this machine, where its meshes are looked for: the one its Thing
+    names (`urdf_dir` of twin.json), else its `urdf` as a path or a pybullet_data path; None if not here."""
     import pybullet_data
 
-    for path in (Path(reference), ROBOTS_DIR / reference, Path(pybullet_data.getDataPath()) / reference):
+    if twin.urdf_dir and Path(twin.urdf_dir).is_dir():
+        return Path(twin.urdf_dir)
+    for path in (Path(twin.urdf), Path(pybullet_data.getDataPath()) / twin.urdf):
         if path.is_file():
             return path.resolve().parent
     return None
@@ -265,7 +266,7 @@ class RobotDrawer:
             t.robot = None
         elif host is None and t.files is not None and (t.robot is None or redraw):
             try:
-                robot = Robot.load(name, t.files.urdf, thing_robot_path(name, "model"), urdf_dir(t.files.twin.urdf))
+                robot = Robot.load(name, t.files.urdf, thing_robot_path(name, "model"), urdf_dir(t.files.twin))
             except Exception as e:  # a bad URDF: the joint series and the log still record
                 problems.append(f"cannot draw robot {name} from {t.files.twin.urdf_file}: {e}")
             else:

@@ -43,7 +43,6 @@ from rerun.urdf import UrdfJoint, UrdfTree
 from twinmesh.messages.scene import Body, Pose, Poses, RobotModel, SceneDescription
 from twinmesh.recorder import mapping
 from twinmesh.recorder.mapping import Entry, entity_path
-from twinmesh.robot.model import ROBOTS_DIR
 from twinmesh.robot.resources import with_absolute_meshes
 
 WORLD = "world"
@@ -97,9 +96,9 @@ class Robot:
     missing: list[str]  # mesh files that could not be found: those links are drawn as frames only
 
     @classmethod
-    def load(cls, name: str, urdf: str, root: str, urdf_dir: Path | None = ROBOTS_DIR) -> "Robot":
-        """`urdf_dir`: where the URDF lives on this machine, so that its meshes (`package://`, relative)
-        are found; the text itself may have come over the mesh."""
+    def load(cls, name: str, urdf: str, root: str, urdf_dir: Path | None) -> "Robot":
+        """`urdf_dir`: where the URDF lives on this machine (as its Thing says), so that its meshes
+        (`package://`, relative) are found; the text itself came over the mesh."""
         urdf, missing = with_absolute_meshes(urdf, urdf_dir)
         with tempfile.TemporaryDirectory(prefix="twinmesh-urdf-") as tmp:
             path = Path(tmp) / f"{name}.urdf"
@@ -226,7 +225,7 @@ class SceneDrawer:
         return self._scene.scene if self._scene is not None else None
 
     def _draw_robot(self, model: RobotModel, urdf: str) -> None:
-        robot = Robot.load(model.name, urdf, robot_path(model.name))
+        robot = Robot.load(model.name, urdf, robot_path(model.name), model.urdf_dir and Path(model.urdf_dir))
         robot.draw(self.rec, model.base)
         self.robots[model.name] = robot
 

@@ -345,7 +345,8 @@ class RobotTwin:
         scene = msgspec.to_builtins(self._scene)
         scene.pop("robot", None)
         return TwinDescription(
-            robot=self.name, urdf=urdf, urdf_sha256=urdf_sha256, urdf_file=urdf_file, base=self.base.pose(),
+            robot=self.name, urdf=urdf, urdf_sha256=urdf_sha256, urdf_file=urdf_file,
+            urdf_dir=str(self.robot.urdf_path.resolve().parent), base=self.base.pose(),
             ee=self.robot.ee_link, base_link=self.robot.base_link, fixed=self.robot.info()["heldJoints"],
             packages=self.robot.packages, allowed_collisions=list(self.robot.allowed_collisions), scene=scene,
             samples=samples, seed=seed,

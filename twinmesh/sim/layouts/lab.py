@@ -153,8 +153,11 @@ class IotLab:
         for lamp in self.lamps.values():
             bodies += [box(c, f"{lamp.name}-post", lamp.post), box(c, f"{lamp.name}-shade", lamp.shade)]
         bodies += [box(c, o.body_name, body) for o, body in self._obstacles.values()]
-        robots = [RobotModel(name="ur10", urdf="ur10.urdf", base=self.ur10.base.pose())]
-        robots += [RobotModel(name=name, urdf=f"{name}.urdf", base=pose(body_pose(c, unit.body)))
+        urdfs = self.robot_urdfs()
+        robots = [RobotModel(name="ur10", urdf="ur10.urdf", base=self.ur10.base.pose(),
+                             urdf_dir=str(urdfs["ur10"].resolve().parent))]
+        robots += [RobotModel(name=name, urdf=f"{name}.urdf", base=pose(body_pose(c, unit.body)),
+                              urdf_dir=str(urdfs[name].resolve().parent))
                    for name, unit in self.pan_tilts.items()]
         return SceneDescription(name=self.name, robots=platform.robots + robots, bodies=platform.bodies + bodies)
 

@@ -179,8 +179,9 @@ class IotPlatform:
         named["color-sensor"] = self.color_sensor.body
         bodies: list[Body] = [box(c, name, body) for name, body in named.items()]
         bodies += [box(c, cube.name, cube.body, moving=True) for cube in self.cubes]
-        robots = [RobotModel(name=robot, urdf=f"{robot}.urdf", base=pose(body_pose(c, self.devices[robot].arm.body)))
-                  for robot in self.robot_urdfs()]
+        robots = [RobotModel(name=robot, urdf=f"{robot}.urdf", base=pose(body_pose(c, self.devices[robot].arm.body)),
+                             urdf_dir=str(path.resolve().parent))
+                  for robot, path in self.robot_urdfs().items()]
         return SceneDescription(name=self.name, robots=robots, bodies=bodies)
 
     def close(self) -> None:
