@@ -9,8 +9,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 @pytest.fixture(scope="session")
 def ur10():
-    """The UR10 written from its DH parameters (twinmesh/robot/models/ur10.urdf)."""
-    from twinmesh.robot.model import Robot
+    """The UR10 written from its DH parameters (tdgen/robot/models/ur10.urdf)."""
+    from tdgen.robot.model import Robot
 
     return Robot.load("ur10.urdf")
 
@@ -18,6 +18,6 @@ def ur10():
 @pytest.fixture(scope="session")
 def scene():
     """The shipped `table-and-wall` scene: a table, a wall beside it, the robot on the table."""
-    from twinmesh.robot.surroundings import load_scene
+    from tdgen.robot.surroundings import load_scene
 
     return load_scene("table-and-wall")

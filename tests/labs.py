@@ -18,9 +18,9 @@ from pathlib import Path
 
 import httpx
 
-from twinmesh.fabric.client import MeshClient
-from twinmesh.fabric.session import open_session
-from twinmesh.fabric.settings import MeshSettings
+from mesh.fabric.client import MeshClient
+from mesh.fabric.session import open_session
+from mesh.fabric.settings import MeshSettings
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -32,7 +32,7 @@ def free_port() -> int:
 
 
 def twinmesh_cmd(endpoint: str, *args: str) -> list[str]:
-    return [sys.executable, "-m", "twinmesh", "--connect", endpoint, *args]
+    return [sys.executable, "-m", "devices", "--connect", endpoint, *args]
 
 
 @dataclass
@@ -60,7 +60,19 @@ class Lab:
         self.extra.append(p)
         return p
 
-    def wait_things(self, names: set[str], timeout: float = 30.0) -> list[str]:
+    def wait_ready(self, limit: float = 1200.0) -> None:
+        """`twinmesh wait`, what a user's script does, for as long as the lab runs and says what it still
+        waits for: no fixed time (a busy machine only makes it slower); `limit` is a last resort."""
+        deadline = time.monotonic() + limit
+        while True:
+            ready = self.cli("wait", "--timeout", "20", timeout=60)
+            if ready.returncode == 0:
+                return
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                why = "the lab exited" if self.proc.poll() is not None else f"not ready after {limit:.0f} s"
+                raise AssertionError(f"{why}: {ready.stderr}\n--- lab log ---\n{self.log.read_text()[-4000:]}")
+
+    def wait_things(self, names: set[str], timeout: float = 120.0) -> list[str]:
         """Poll `twinmesh things` until all `names` are listed (start-up of spawned processes)."""
         deadline = time.monotonic() + timeout
         listed: list[str] = []
@@ -73,7 +85,7 @@ class Lab:
         raise AssertionError(f"things {sorted(names - set(listed))} not listed within {timeout} s; "
                              f"listed {listed}\n--- lab log ---\n{self.log.read_text()[-4000:]}")
 
-    def wait_http(self, path: str = "/things", timeout: float = 30.0) -> None:
+    def wait_http(self, path: str = "/things", timeout: float = 120.0) -> None:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             try:
@@ -84,7 +96,7 @@ class Lab:
             time.sleep(0.2)
         raise AssertionError(f"adapter not serving {path} within {timeout} s\n{self.log.read_text()[-4000:]}")
 
-    def stop(self, timeout: float = 15.0) -> bool:
+    def stop(self, timeout: float = 30.0) -> bool:
         """Ctrl-C everything; True when every process exited on its own."""
         clean = True
         for p in [*self.extra, self.proc]:
@@ -129,8 +141,7 @@ def start_lab(tmp: Path, scene: str | None = "lights", http: bool = True, things
                             cwd=REPO, start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lab = Lab(endpoint, f"http://127.0.0.1:{port}" if http else None, proc, log, options=options)
     try:
-        ready = lab.cli("wait", "--timeout", "300", timeout=330)  # what a user's script does
-        assert ready.returncode == 0, f"{ready.stderr}\n--- lab log ---\n{log.read_text()[-4000:]}"
+        lab.wait_ready()
         if things:
             lab.wait_things(things)
         if http:

@@ -11,8 +11,8 @@ import httpx
 import pytest
 from labs import mesh_client, start_robot_lab
 
-from twinmesh.wot.invocation import Invocations
-from twinmesh.wot.problem import BadInput, Conflict, NotFound
+from mesh.wot.invocation import Invocations
+from mesh.wot.problem import BadInput, Conflict, NotFound
 
 PROBLEM = "application/problem+json"
 JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
@@ -182,14 +182,38 @@ def test_finished_invocations_are_kept_for_a_bounded_time_and_count():
             kept.get(ids[4])
 
 
+def test_a_cancel_that_meets_an_action_finishing_by_itself_is_409_with_the_final_status():
+    """The action ends `completed` while the DELETE waits (it does not heed cancellation): the answer is
+    the documented 409 for an ended action, with its final status, never a 202 that shows `completed`."""
+    import threading
+
+    started = threading.Event()
+
+    def stubborn() -> str:
+        started.set()
+        time.sleep(0.3)  # finishes on its own, whatever is asked
+        return "done"
+
+    with ThreadPoolExecutor(2) as pool:
+        kept = Invocations(pool)
+        status = kept.start("blink", stubborn)
+        assert started.wait(5)
+        with pytest.raises(Conflict) as ended:
+            kept.cancel(status.id, wait=5.0)
+        assert ended.value.status == 409 and ended.value.extra["status"] == "completed"
+        assert ended.value.extra["final"]["output"] == "done"
+        with pytest.raises(Conflict):  # and once more, after the end
+            kept.cancel(status.id)
+
+
 @pytest.mark.parametrize("binding", ["http", "zenoh"])
 def test_consume_starts_queries_waits_for_and_cancels_async_moves(lab, http, binding):
-    import twinmesh
+    import mesh
 
     at(http, 0)
     with mesh_client(lab.endpoint) as c:
-        ur10 = (twinmesh.consume(f"{lab.http}/ur10") if binding == "http"
-                else twinmesh.consume("ur10", session=c.session, settings=c.settings))
+        ur10 = (mesh.consume(f"{lab.http}/ur10") if binding == "http"
+                else mesh.consume("ur10", session=c.session, settings=c.settings))
         with ur10:
             move = ur10.invoke_action_async("moveToJointPosition", goal(30))
             assert move.query().status in ("pending", "running")

@@ -87,6 +87,63 @@ def test_up_stops_every_process_on_ctrl_c(tmp_path):
     assert not left, f"processes left behind after Ctrl-C: {left}"
 
 
+
+STARTER = """
+import sys, time
+sys.path.insert(0, {tests!r})
+from pathlib import Path
+from labs import start_lab
+lab = start_lab(Path({tmp!r}), "lights", http=False, things={{"light-left"}})
+print(lab.proc.pid, flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_lab_dies_with_whoever_started_it_even_killed_hard(tmp_path):
+    """A test process (or a script, an editor) that started `twinmesh up` and is then SIGKILLed leaves
+    nothing running: no `up`, none of its processes, no port held."""
+    import signal
+    import sys
+
+    import psutil
+
+    starter = subprocess.Popen([sys.executable, "-c", STARTER.format(tests=str(REPO / "tests"), tmp=str(tmp_path))],
+                               stdout=subprocess.PIPE, text=True, cwd=REPO)
+    try:
+        line = starter.stdout.readline()
+        assert line.strip().isdigit(), f"the starter printed {line!r}"
+        up = psutil.Process(int(line))
+        lab = [up, *up.children(recursive=True)]
+        assert len(lab) >= 3, "up, its router and the lights run"
+    finally:
+        starter.send_signal(signal.SIGKILL)
+        starter.wait()
+    gone, alive = psutil.wait_procs(lab, timeout=20)
+    assert not alive, f"left behind after the starter was killed: {[(p.pid, p.name()) for p in alive]}"
+
+
+def test_up_can_be_asked_to_outlive_its_starter(tmp_path):
+    import signal
+    import sys
+
+    import psutil
+    from labs import free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    script = ("import subprocess, sys; p = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL, "
+              "stderr=subprocess.DEVNULL, start_new_session=True); print(p.pid, flush=True)")
+    out = subprocess.run([sys.executable, "-c", script, *twinmesh_cmd(endpoint, "up", "lights", "--no-http",
+                                                                         "--no-view", "--outlive-parent")],
+                         capture_output=True, text=True, cwd=REPO, timeout=60)
+    up = psutil.Process(int(out.stdout.strip()))  # its starter has ended already
+    try:
+        ready = subprocess.run(twinmesh_cmd(endpoint, "wait", "--timeout", "120"), capture_output=True, text=True,
+                               cwd=REPO, timeout=150)
+        assert ready.returncode == 0 and up.is_running(), ready.stderr
+    finally:
+        up.send_signal(signal.SIGINT)
+        up.wait(30)
+
 def _children(pid: int) -> list[int]:
     out = subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True).stdout
     return [int(x) for x in out.split()]

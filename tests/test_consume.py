@@ -1,4 +1,4 @@
-"""`twinmesh.consume()`: one Python consumer for any TD, driven by the TD's forms. The same script drives
+"""`mesh.consume()`: one Python consumer for any TD, driven by the TD's forms. The same script drives
 node-wot's own servient (HTTP), a twinmesh lab through its adapter (HTTP) and the same lab's Things on
 the mesh (Zenoh forms): reads, writes, actions, observations, events, multi-property reads, errors.
 """
@@ -11,9 +11,9 @@ import pytest
 from interop import npm
 from labs import start_lab
 
-import twinmesh
-from twinmesh.wot.consumed import Inbox
-from twinmesh.wot.problem import BadInput, NotFound, Problem
+import mesh
+from mesh.wot.consumed import Inbox
+from mesh.wot.problem import BadInput, NotFound, Problem
 
 WAIT = 5.0  # s for a notification to arrive (hang detection, not a timing goal)
 
@@ -27,8 +27,8 @@ def lab(tmp_path_factory):
 
 @contextmanager
 def mesh_session(endpoint: str):
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
+    from mesh.fabric.session import open_session
+    from mesh.fabric.settings import MeshSettings
 
     settings = MeshSettings(mode="client", connect=(endpoint,))
     with open_session(settings) as session:
@@ -39,14 +39,14 @@ def mesh_session(endpoint: str):
 def light(where: str, lab=None):
     """light-left as a ConsumedThing: node-wot's servient, the lab's adapter, or the lab's mesh."""
     if where == "node-wot":
-        with npm.start_baseline_servient() as servient, twinmesh.consume(servient.td_url()) as thing:
+        with npm.start_baseline_servient() as servient, mesh.consume(servient.td_url()) as thing:
             yield thing
     elif where == "adapter":
-        with twinmesh.consume(f"{lab.http}/light-left") as thing:
+        with mesh.consume(f"{lab.http}/light-left") as thing:
             yield thing
     else:
         with mesh_session(lab.endpoint) as (session, settings), \
-                twinmesh.consume("light-left", session=session, settings=settings) as thing:
+                mesh.consume("light-left", session=session, settings=settings) as thing:
             yield thing
 
 
@@ -98,9 +98,9 @@ def test_bad_input_is_refused_before_it_leaves_and_names_the_field(where, reques
 
 def test_device_errors_come_back_as_the_problem_the_device_raised(lab):
     """Problems cross both bindings unchanged: the adapter's 503 for a gone Thing, as a Problem."""
-    with twinmesh.consume(f"{lab.http}/light-right") as thing:
+    with mesh.consume(f"{lab.http}/light-right") as thing:
         assert thing.read_property("lightState") in (True, False)
-    with twinmesh.consumer(base=lab.http) as things:
+    with mesh.consumer(base=lab.http) as things:
         with pytest.raises(Problem) as missing:
             things.thing("no-such-light")
         assert missing.value.status == 404
@@ -110,10 +110,10 @@ def test_credentials_are_sent_to_a_thing_that_needs_them():
     secret = {"username": "teacher", "password": "class-7b"}
     with npm.start_baseline_servient(credentials=secret) as servient:
         url = servient.td_url()
-        with twinmesh.consume(url, auth="basic:teacher:class-7b") as thing:
+        with mesh.consume(url, auth="basic:teacher:class-7b") as thing:
             thing.write_property("lightState", True)
             assert thing.read_property("lightState") is True
-        with twinmesh.consumer(auth="basic:teacher:class-7b") as with_td, twinmesh.consumer() as without:
+        with mesh.consumer(auth="basic:teacher:class-7b") as with_td, mesh.consumer() as without:
             td = with_td.clients[-1].fetch_td(url)
             stranger = without.consume(td)
             with pytest.raises(Problem) as refused:
@@ -122,9 +122,9 @@ def test_credentials_are_sent_to_a_thing_that_needs_them():
 
 
 def test_the_cube_workflow_has_no_consumer_of_its_own():
-    """The apps drive Things through twinmesh.consume's Consumer only (SPEC's one consumer)."""
-    import twinmesh.apps.cube_workflow as workflow
-    import twinmesh.apps.evaluation as evaluation
+    """The apps drive Things through mesh.consume's Consumer only (SPEC's one consumer)."""
+    import devices.apps.cube_workflow as workflow
+    import devices.apps.evaluation as evaluation
 
     for module in (workflow, evaluation):
         own = [n for n, v in vars(module).items() if isinstance(v, type) and "Consumer" in n and v.__module__ ==

@@ -149,7 +149,7 @@ def test_with_http_auth_the_page_asks_once_and_uses_the_credentials_for_calls_an
 
 # --- the live 3D view -------------------------------------------------------------------------------
 VIEW_3D = (0, 40, 700, 760)  # x0, y0, x1, y1 of the 3D view in a 1200 x 800 window (the layout's left pane)
-UR_BLUE = (0.35, 0.55, 0.8)  # the UR10's `ur_blue` material (twinmesh/robot/models/ur10.urdf)
+UR_BLUE = (0.35, 0.55, 0.8)  # the UR10's `ur_blue` material (tdgen/robot/models/ur10.urdf)
 
 
 def picture(page) -> np.ndarray:

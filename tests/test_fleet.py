@@ -15,10 +15,10 @@ import httpx
 import msgspec
 import pytest
 
+from devices.things.fleet import fleet_names
+from devices.things.lights import light_td
+from devices.things.platform import twin_td
 from tests.labs import Lab, start_lab
-from twinmesh.things.fleet import fleet_names
-from twinmesh.things.lights import light_td
-from twinmesh.things.platform import twin_td
 
 pytestmark = pytest.mark.timeout(600)
 
@@ -175,7 +175,7 @@ def test_descriptors_and_threads_per_device_stay_bounded_as_the_fleet_doubles(tm
 def test_direct_without_join_is_refused_naming_the_option():
     from click.testing import CliRunner
 
-    from twinmesh.cli.main import main
+    from devices.cli.main import main
 
     result = CliRunner().invoke(main, ["up", "fleet", "--fleet", "5", "--direct"])
     assert result.exit_code == 2 and "--direct is for --join" in result.output, result.output

@@ -80,7 +80,7 @@ def tds(lab) -> dict[str, dict]:
 
 
 def lab_things() -> list[str]:
-    from twinmesh.lab.scenes import scene_things
+    from devices.lab.scenes import scene_things
 
     return ["tdgen", *scene_things("iot-lab")]
 
@@ -160,10 +160,10 @@ def test_every_affordance_survives_valid_and_almost_valid_inputs_over_http(lab, 
 
 @pytest.mark.parametrize("thing", lab_things())
 def test_every_affordance_survives_the_same_inputs_over_zenoh(lab, tds, thing):
-    from twinmesh.fabric.client import MeshClient
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
-    from twinmesh.wot.problem import Problem
+    from mesh.fabric.client import MeshClient
+    from mesh.fabric.session import open_session
+    from mesh.fabric.settings import MeshSettings
+    from mesh.wot.problem import Problem
 
     settings_ = MeshSettings(mode="client", connect=(lab.endpoint,), action_timeout=120)
     td = tds[thing]

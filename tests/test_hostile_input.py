@@ -34,8 +34,8 @@ def http(lab):
 
 @pytest.fixture
 def zenoh_session(lab):
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
+    from mesh.fabric.session import open_session
+    from mesh.fabric.settings import MeshSettings
 
     with open_session(MeshSettings(mode="client", connect=(lab.endpoint,))) as session:
         yield session
@@ -191,7 +191,7 @@ def test_repairing_something_that_is_no_recording_is_one_line(tmp_path):
 def test_a_simulation_that_stops_stepping_says_so_and_tells_its_process():
     import threading
 
-    from twinmesh.sim.world import World
+    from devices.sim.world import World
 
     died = threading.Event()
     world = World(speed=None)
@@ -207,7 +207,7 @@ def test_a_simulation_that_stops_stepping_says_so_and_tells_its_process():
 
 
 def test_speed_factors_outside_the_sane_range_are_refused_by_the_world_and_the_cli():
-    from twinmesh.sim.world import World
+    from devices.sim.world import World
 
     world = World(speed=1.0)
     try:

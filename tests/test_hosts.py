@@ -13,14 +13,14 @@ from pathlib import Path
 import httpx
 import pytest
 
+from devices.things.fleet import fleet_names
 from tests import netns
-from twinmesh.things.fleet import fleet_names
 
 WHY_NOT = netns.unavailable()
 pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=f"network namespaces: {WHY_NOT}"),
               pytest.mark.timeout(600)]
 
-TWINMESH = [sys.executable, "-m", "twinmesh"]
+TWINMESH = [sys.executable, "-m", "devices"]
 HANG = 60.0  # s: only detects a hang; how fast a cut is seen is printed here and measured in tests/bench
 # s after a cut during which the first host's own Things must keep answering: B's dead links are seen
 # (1.5 s lease) and closed, which takes Zenoh up to 10 s more (a TCP linger; see ROUTER_RUNTIME)

@@ -24,9 +24,9 @@ def lab(tmp_path_factory):
 @pytest.fixture(scope="module")
 def mesh(lab):
     """A Zenoh consumer on the lab: the device's own view, bypassing the adapter and its cache."""
-    from twinmesh.fabric.client import MeshClient
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
+    from mesh.fabric.client import MeshClient
+    from mesh.fabric.session import open_session
+    from mesh.fabric.settings import MeshSettings
 
     settings = MeshSettings(connect=(lab.endpoint,), mode="client")
     with open_session(settings) as session:
@@ -141,6 +141,21 @@ def test_non_json_content_type_is_415(left, mesh):
     assert r.status_code == 415 and r.headers["content-type"] == PROBLEM
     assert state(mesh) == before
 
+
+
+def test_an_inputless_action_takes_an_empty_body_of_any_content_type(left, mesh):
+    """`curl -X POST -d '' URL` sends application/x-www-form-urlencoded with nothing in it: nothing to decode,
+    so the action runs; a body that is there and not JSON stays 415."""
+    httpx.post(f"{left}/actions/switchOff").raise_for_status()
+    r = httpx.post(f"{left}/actions/switchOn", content=b"",
+                   headers={"content-type": "application/x-www-form-urlencoded"})
+    assert r.status_code in (200, 204), r.text
+    assert httpx.get(f"{left}/properties/lightState").json() is True
+    before = state(mesh)
+    r = httpx.post(f"{left}/actions/switchOff", content=b"a=1",
+                   headers={"content-type": "application/x-www-form-urlencoded"})
+    assert r.status_code == 415 and r.headers["content-type"] == PROBLEM
+    assert state(mesh) == before
 
 # --- observation ---------------------------------------------------------------------------------
 def _in_background(fn):

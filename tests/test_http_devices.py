@@ -26,7 +26,7 @@ CSV = b"x,y,z,collision\n0,0,0,0\n"
 
 
 def probe_td(name: str):
-    from twinmesh.wot.td import decode_td, thing_id
+    from mesh.wot.td import decode_td, thing_id
 
     return decode_td({
         "title": name, "id": thing_id(name),
@@ -54,8 +54,8 @@ def probe_td(name: str):
 
 
 def _probe(session, name: str, keys):
-    from twinmesh.fabric.server import ExposedThing
-    from twinmesh.wot.problem import Refused
+    from mesh.fabric.server import ExposedThing
+    from mesh.wot.problem import Refused
 
     def refuse(_):
         raise Refused("the probe refuses everything", reason="always")
@@ -72,10 +72,10 @@ def _probe(session, name: str, keys):
 
 def serve(endpoint: str, kind: str, name: str) -> None:
     """Process entry: one `light` or `probe` Thing; prints `exposed` once its liveliness token is out."""
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
-    from twinmesh.lab.supervisor import install_stop_handlers
-    from twinmesh.things.lights import Light
+    from devices.lab.supervisor import install_stop_handlers
+    from devices.things.lights import Light
+    from mesh.fabric.session import open_session
+    from mesh.fabric.settings import MeshSettings
 
     stop = install_stop_handlers()
     settings = MeshSettings(connect=(endpoint,))

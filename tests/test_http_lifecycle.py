@@ -115,17 +115,17 @@ def _ok(url: str) -> bool:
 
 def test_observers_are_dropped_when_clients_disconnect(lab, monkeypatch):
     """The adapter in this process (to look at its registry): feeds go when their clients go."""
-    from twinmesh.fabric.settings import MeshSettings
-    from twinmesh.http import server
+    from mesh.fabric.settings import MeshSettings
+    from mesh.http import gateway, server
 
     registries = []
 
-    class Recorded(server.Registry):
+    class Recorded(gateway.Registry):
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
             registries.append(self)
 
-    monkeypatch.setattr(server, "Registry", Recorded)
+    monkeypatch.setattr(gateway, "Registry", Recorded)  # what the adapter's open_registry makes
     stop, port = threading.Event(), free_port()
     thread = threading.Thread(target=server.run, args=(MeshSettings(connect=(lab.endpoint,)), stop,
                                                        ("127.0.0.1", port)), daemon=True)

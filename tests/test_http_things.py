@@ -153,10 +153,10 @@ def test_the_directory_tells_when_a_thing_comes_changes_and_goes(lab):
     import threading
     import time
 
-    from twinmesh.fabric.server import ExposedThing
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
-    from twinmesh.wot.td import decode_td
+    from mesh.fabric.server import ExposedThing
+    from mesh.fabric.session import open_session
+    from mesh.fabric.settings import MeshSettings
+    from mesh.wot.td import decode_td
 
     got: queue.Queue = queue.Queue()
 

@@ -18,8 +18,8 @@ import pytest
 from labs import start_lab
 from tdschema import assert_valid_td
 
-from twinmesh.messages.relations import POINTS, SCENE
-from twinmesh.sim.robot import workspace_from_csv
+from devices.sim.robot import workspace_from_csv
+from mesh.messages.relations import POINTS, SCENE
 
 SAMPLES = "4000"
 PROBLEM = "application/problem+json"

@@ -17,12 +17,12 @@ import pytest
 from labs import free_port
 from tdschema import assert_valid_td
 
-from twinmesh.sim.pan_tilt import NOTHING, PanTilt
-from twinmesh.sim.sensors import reading_of
-from twinmesh.sim.world import World, static_box
-from twinmesh.things.pan_tilt import expose_pan_tilt, pan_tilt_td
-from twinmesh.wot.problem import BadInput, Problem
-from twinmesh.wot.td import thing_id, zenoh_forms
+from devices.sim.pan_tilt import NOTHING, PanTilt
+from devices.sim.sensors import reading_of
+from devices.sim.world import World, static_box
+from devices.things.pan_tilt import expose_pan_tilt, pan_tilt_td
+from mesh.wot.problem import BadInput, Problem
+from mesh.wot.td import thing_id, zenoh_forms
 
 BASE = (0.0, 0.0, 0.75)        # the unit stands on a table, looking along +x at home
 CAMERA_Z = BASE[2] + 0.09      # the tilt axis, 9 cm above the mount
@@ -216,7 +216,7 @@ def test_the_same_colour_on_another_body_is_a_change(unit, world, names):
 def test_the_td_is_valid_and_keeps_the_reference_affordances_and_inputs():
     from pathlib import Path
 
-    tds = Path(__file__).resolve().parents[1] / "twinmesh" / "things" / "tds"
+    tds = Path(__file__).resolve().parents[1] / "devices" / "things" / "tds"
     reference = json.loads((tds / "pan-tilt.json").read_text())
     td = pan_tilt_td("pan-tilt-1")
     served = msgspec.to_builtins(zenoh_forms(td, "wot", "pan-tilt-1"))
@@ -241,8 +241,8 @@ def test_the_td_is_valid_and_keeps_the_reference_affordances_and_inputs():
 # --- on a mesh ---------------------------------------------------------------------------------------
 @pytest.fixture
 def mesh():
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
+    from mesh.fabric.session import open_session
+    from mesh.fabric.settings import MeshSettings
 
     settings = MeshSettings(connect=(f"tcp/127.0.0.1:{free_port()}",))
     with open_session(settings.as_router()):
@@ -250,8 +250,8 @@ def mesh():
 
 
 def test_on_the_mesh_move_to_answers_when_there_with_the_final_position_published(mesh, unit, world, names):
-    from twinmesh.fabric.client import MeshClient
-    from twinmesh.fabric.session import open_session
+    from mesh.fabric.client import MeshClient
+    from mesh.fabric.session import open_session
 
     add_box(world, names, "red-box", RED_AT, RED)
     positions: queue.Queue = queue.Queue()

@@ -15,8 +15,8 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from twinmesh.sim.belt import STOPPED, Belt
-from twinmesh.sim.compensation import (
+from devices.sim.belt import STOPPED, Belt
+from devices.sim.compensation import (
     DOBOT_EE,
     DOBOT_MAIN_JOINTS,
     DOBOT_PASSIVE_JOINTS,
@@ -30,12 +30,12 @@ from twinmesh.sim.compensation import (
     dobot_passive,
     uarm_passive,
 )
-from twinmesh.sim.dobot import Cube, EmptyWarehouse, NoCubeAtPickup
-from twinmesh.sim.layouts.platform import CUBE_COLORS, UARM_BASE, IotPlatform, build_platform
-from twinmesh.sim.sensors import InfraredSensor
-from twinmesh.sim.uarm import GOTO_RANGE, OutOfRange, Unreachable, calibration_pairs, real_fk, real_ik
-from twinmesh.sim.world import MotionCancelled
-from twinmesh.wot.problem import BadInput, Refused
+from devices.sim.dobot import Cube, EmptyWarehouse, NoCubeAtPickup
+from devices.sim.layouts.platform import CUBE_COLORS, UARM_BASE, IotPlatform, build_platform
+from devices.sim.sensors import InfraredSensor
+from devices.sim.uarm import GOTO_RANGE, OutOfRange, Unreachable, calibration_pairs, real_fk, real_ik
+from devices.sim.world import MotionCancelled
+from mesh.wot.problem import BadInput, Refused
 
 
 @pytest.fixture
@@ -313,8 +313,8 @@ def test_speed_one_runs_in_real_time_and_actions_come_from_any_thread():
 
 
 def test_tdgen_loads_both_arms_with_their_compensation():
-    robot_mod = pytest.importorskip("twinmesh.robot.model")
-    kin = pytest.importorskip("twinmesh.robot.kinematics")
+    robot_mod = pytest.importorskip("tdgen.robot.model")
+    kin = pytest.importorskip("tdgen.robot.kinematics")
     uarm = robot_mod.Robot.load(UARM_URDF, ee=UARM_EE, passive_joints=list(UARM_PASSIVE_JOINTS), passive=uarm_passive)
     dobot = robot_mod.Robot.load(DOBOT_URDF, ee=DOBOT_EE, passive_joints=list(DOBOT_PASSIVE_JOINTS),
                                  passive=dobot_passive)

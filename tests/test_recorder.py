@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 from labs import start_lab, stop_process
 
-from twinmesh.recorder import mapping
-from twinmesh.wot.td import DataSchema
+from mesh.recorder import mapping
+from mesh.wot.td import DataSchema
 
 RERUN = str(Path(sys.executable).with_name("rerun"))
 LEFT = "/things/light-left"

@@ -18,19 +18,19 @@ import pytest
 from labs import REPO, start_lab, stop_process
 from test_recorder import RERUN, read_column, scalars, texts, wait_for_line
 
-from twinmesh.fabric.settings import MeshSettings
-from twinmesh.messages.relations import MODEL, POINTS, WORKSPACE
-from twinmesh.messages.relations import TWIN as TWIN_REL
-from twinmesh.messages.scene import Pose, RobotModel, SceneDescription, TwinDescription
-from twinmesh.recorder.robots import RobotDrawer, RobotFiles, Workspace, joint_units, link_file, to_twin_frame
-from twinmesh.recorder.scene import SceneDrawer, SceneFiles, lab_blueprint
-from twinmesh.wot.td import DataSchema, Link, PropertyAffordance, ThingDescription
+from mesh.fabric.settings import MeshSettings
+from mesh.messages.relations import MODEL, POINTS, WORKSPACE
+from mesh.messages.relations import TWIN as TWIN_REL
+from mesh.messages.scene import Pose, RobotModel, SceneDescription, TwinDescription
+from mesh.recorder.robots import RobotDrawer, RobotFiles, Workspace, joint_units, link_file, to_twin_frame
+from mesh.recorder.scene import SceneDrawer, SceneFiles, lab_blueprint
+from mesh.wot.td import DataSchema, Link, PropertyAffordance, ThingDescription
 
-UR10_URDF = (REPO / "twinmesh" / "robot" / "models" / "ur10.urdf").read_text()
+UR10_URDF = (REPO / "tdgen" / "robot" / "models" / "ur10.urdf").read_text()
 JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
           "wrist_3_joint"]
 BASE = Pose((0.8, -0.4, 0.1), (0.0, 0.0, math.sin(math.pi / 4), math.cos(math.pi / 4)))  # yawed 90°
-TWIN = TwinDescription(robot="ur10", urdf="twinmesh/robot/models/ur10.urdf", urdf_sha256="0" * 64, urdf_file="ur10.urdf",
+TWIN = TwinDescription(robot="ur10", urdf="tdgen/robot/models/ur10.urdf", urdf_sha256="0" * 64, urdf_file="ur10.urdf",
                        base=BASE)
 SWEEP_DEG = [round(1.5 * i, 3) for i in range(40)]  # shoulder_pan, deg
 ELBOW_DEG = -30.0
@@ -97,8 +97,8 @@ def joint_sample(i: int) -> dict[str, float]:
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
     """Serve `ur10` here, record its sweep, regenerate its workspace (TD re-published), stop with Ctrl-C."""
-    from twinmesh.fabric.server import ExposedThing
-    from twinmesh.fabric.session import open_session
+    from mesh.fabric.server import ExposedThing
+    from mesh.fabric.session import open_session
 
     tmp = tmp_path_factory.mktemp("rec-robots")
     lab = start_lab(tmp, "lights", http=False, things={"light-left"})
@@ -327,8 +327,8 @@ def test_the_blueprint_hides_workspaces_in_the_lab_view_and_shows_them_in_their_
 
 # --- a real robot Thing --------------------------------------------------------------------------
 def _robot_missing() -> str | None:
-    if importlib.util.find_spec("twinmesh.things.robot") is None:
-        return "`twinmesh robot` not written yet: no twinmesh/things/robot.py"
+    if importlib.util.find_spec("devices.things.robot") is None:
+        return "`twinmesh robot` not written yet: no devices/things/robot.py"
     return None
 
 
@@ -340,7 +340,7 @@ def test_a_ur10_thing_is_recorded_with_its_trajectory_and_workspace(tmp_path):
     try:
         recorder = lab.spawn("record", str(path), log=log)
         wait_for_line(log, "recording to", recorder)
-        lab.spawn("robot", str(REPO / "twinmesh" / "robot" / "models" / "ur10.urdf"), "--name", "ur10", "--samples", "3000",
+        lab.spawn("robot", str(REPO / "tdgen" / "robot" / "models" / "ur10.urdf"), "--name", "ur10", "--samples", "3000",
                   "--speed", "max", log=tmp_path / "robot.log")
         lab.wait_things({"ur10"}, timeout=120)
         td = _wait_workspace(lab, "ur10", timeout=300)
@@ -379,11 +379,11 @@ def _wait_workspace(lab, thing: str, timeout: float) -> dict:
 
 def _safe_target(lab, td: dict) -> dict[str, float]:
     """A collision-free sampled point whose ten nearest samples are free too, near the free points' middle."""
-    from twinmesh.fabric.client import MeshClient
-    from twinmesh.fabric.session import open_session
-    from twinmesh.recorder.robots import read_points
-    from twinmesh.wot.problem import Unavailable
-    from twinmesh.wot.td import decode_td
+    from mesh.fabric.client import MeshClient
+    from mesh.fabric.session import open_session
+    from mesh.recorder.robots import read_points
+    from mesh.wot.problem import Unavailable
+    from mesh.wot.td import decode_td
 
     settings = MeshSettings(connect=(lab.endpoint,))
     with open_session(settings) as session:
@@ -413,7 +413,7 @@ def test_a_mesh_based_urdf_is_drawn_with_its_meshes(tmp_path):
     import pybullet_data
     from rerun.chunk import RrdReader
 
-    from twinmesh.recorder.scene import Robot
+    from mesh.recorder.scene import Robot
 
     urdf = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
     robot = Robot.load("panda", urdf.read_text(), "world/robots/panda", urdf.parent)
@@ -432,7 +432,7 @@ def test_a_mesh_based_urdf_is_drawn_with_its_meshes(tmp_path):
 
 
 def test_a_mesh_that_cannot_be_found_is_named_with_where_it_was_looked_for(tmp_path):
-    from twinmesh.recorder.scene import Robot
+    from mesh.recorder.scene import Robot
 
     urdf = ('<robot name="r"><link name="base"><visual><geometry><mesh filename="package://arm/meshes/base.stl"/>'
             '</geometry></visual></link></robot>')

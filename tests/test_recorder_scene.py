@@ -15,12 +15,12 @@ import pytest
 from labs import REPO, start_lab, stop_process
 from test_recorder import RERUN, read_column, scalars, texts, wait_for_line
 
-from twinmesh.fabric.settings import MeshSettings
-from twinmesh.messages.scene import Body, Pose, Poses, RobotModel, SceneDescription
-from twinmesh.recorder.scene import SceneDrawer, SceneFiles
-from twinmesh.wot.td import PropertyAffordance, ThingDescription
+from mesh.fabric.settings import MeshSettings
+from mesh.messages.scene import Body, Pose, Poses, RobotModel, SceneDescription
+from mesh.recorder.scene import SceneDrawer, SceneFiles
+from mesh.wot.td import PropertyAffordance, ThingDescription
 
-UARM_URDF = (REPO / "twinmesh" / "robot" / "models" / "uarm_swift_pro.urdf").read_text()
+UARM_URDF = (REPO / "tdgen" / "robot" / "models" / "uarm_swift_pro.urdf").read_text()
 UARM_BASE = Pose((-0.375, 0.0, 0.75))
 SWEEP = [round(0.1 + 0.02 * i, 4) for i in range(60)]  # lower_arm, rad
 CUBE_PATH = [(round(0.1 + 0.005 * i, 4), 0.19, 0.79) for i in range(len(SWEEP))]
@@ -53,8 +53,8 @@ FIRST = Poses(time=0.0, joints={"uarm": {"lower_arm": 0.05}}, bodies={"cube": CU
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
     """Serve `world` here, record while it publishes the sweep at about 200 samples/s, stop with Ctrl-C."""
-    from twinmesh.fabric.server import ExposedThing
-    from twinmesh.fabric.session import open_session
+    from mesh.fabric.server import ExposedThing
+    from mesh.fabric.session import open_session
 
     tmp = tmp_path_factory.mktemp("rec-scene")
     lab = start_lab(tmp, "lights", http=False, things={"light-left"})
@@ -206,11 +206,11 @@ def test_a_bad_urdf_is_reported_and_the_rest_is_drawn(tmp_path):
 # --- the iot-platform scene ----------------------------------------------------------------------
 def _platform_missing() -> str | None:
     """Why the iot-platform recording cannot run yet (its scene and workflow are written alongside)."""
-    from twinmesh.lab.scenes import SCENES
+    from devices.lab.scenes import SCENES
 
     if "iot-platform" not in SCENES:
         return "iot-platform scene not registered yet"
-    for module in (SCENES["iot-platform"][0].target.split(":")[0], "twinmesh.apps.cube_workflow"):
+    for module in ("devices.lab.iot_platform", "devices.apps.cube_workflow"):
         if importlib.util.find_spec(module) is None:
             return f"iot-platform scene not complete yet: no {module}"
     return None
@@ -218,8 +218,8 @@ def _platform_missing() -> str | None:
 
 @pytest.mark.skipif(_platform_missing() is not None, reason=str(_platform_missing()))
 def test_cube_workflow_recording_shows_both_arms_and_the_cube_round_trip(tmp_path):
-    from twinmesh.sim.layouts.platform import LAYOUT
-    from twinmesh.sim.layouts.platform import UARM_BASE as PLATFORM_UARM
+    from devices.sim.layouts.platform import LAYOUT
+    from devices.sim.layouts.platform import UARM_BASE as PLATFORM_UARM
 
     path = tmp_path / "platform.rrd"
     lab = start_lab(tmp_path, "iot-platform", http=False, things={"world", "uarm", "dobot"},

@@ -23,8 +23,8 @@ from interop import npm
 from labs import mesh_client, start_robot_lab, stop_process
 from tdschema import assert_valid_td
 
-from twinmesh.messages.relations import MODEL, POINTS, SCENE, TWIN, WORKSPACE
-from twinmesh.sim.robot import workspace_from_csv
+from devices.sim.robot import workspace_from_csv
+from mesh.messages.relations import MODEL, POINTS, SCENE, TWIN, WORKSPACE
 
 SAMPLES = "6000"
 CLOSER = ("--base", "0", "0.25", "0.625", "0")

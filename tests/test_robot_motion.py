@@ -9,13 +9,13 @@ import msgspec
 import numpy as np
 import pytest
 
-from twinmesh.robot.collision import CollisionWorld
-from twinmesh.robot.planning import STEP_MM, PathChecker
-from twinmesh.robot.surroundings import BoxBody, build_into
-from twinmesh.sim.robot import Base, MovePlan, RobotTwin, workspace_from_csv
-from twinmesh.sim.world import World
-from twinmesh.tdgen.generate import generate
-from twinmesh.wot.problem import Problem
+from devices.planning.paths import STEP_MM, PathChecker
+from devices.sim.robot import Base, MovePlan, RobotTwin, workspace_from_csv
+from devices.sim.world import World
+from mesh.wot.problem import Problem
+from tdgen.generate import generate
+from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.surroundings import BoxBody, build_into
 
 SAMPLES = 4000
 START = {"shoulder_pan_joint": -170.0, "shoulder_lift_joint": -20.0, "elbow_joint": 0.0, "wrist_1_joint": 0.0,

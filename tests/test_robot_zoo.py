@@ -25,11 +25,11 @@ import pytest
 import trimesh
 from labs import start_robot_lab, stop_process
 
-from twinmesh.robot import ik
-from twinmesh.robot.kinematics import ForwardKinematics
-from twinmesh.robot.model import Robot, RobotError
-from twinmesh.robot.workspace import WorkspaceError
-from twinmesh.tdgen.generate import generate
+from tdgen.generate import generate
+from tdgen.robot import ik
+from tdgen.robot.kinematics import ForwardKinematics
+from tdgen.robot.model import Robot, RobotError
+from tdgen.robot.workspace import WorkspaceError
 
 TARGETS = 200
 TOL_MM = 0.01
@@ -181,14 +181,25 @@ def lab(tmp_path_factory):
     assert lab.stop(), "the lab did not stop cleanly"
 
 
-def _generated_td(http: httpx.Client, name: str, log: Path, timeout: float = 180.0) -> dict:
-    deadline = time.monotonic() + timeout
+def _generated_td(http: httpx.Client, name: str, log: Path, proc, limit: float = 1200.0) -> dict:
+    """The robot's TD once the tdgen service has generated its workspace. No fixed time: it waits while
+    the robot runs and its generation has not failed (a busy machine only makes it slower); `limit`
+    is a last resort for a hang, and the failure says what it waited for."""
+    deadline = time.monotonic() + limit
+    status: dict = {}
     while time.monotonic() < deadline:
         r = http.get(f"/{name}")
         if r.status_code == 200 and any("workspace" in link["rel"] for link in r.json()["links"]):
             return r.json()
-        time.sleep(0.2)
-    raise AssertionError(f"{name}: no generated TD in {timeout} s\n{log.read_text()[-3000:]}")
+        if proc.poll() is not None:
+            raise AssertionError(f"{name}: the robot exited ({proc.returncode}) before its TD was generated\n"
+                                 f"{log.read_text()[-3000:]}")
+        status = http.get("/tdgen/properties/robots").json().get(name, {})
+        if status.get("status") == "failed":
+            raise AssertionError(f"{name}: generation failed: {status.get('error')}\n{log.read_text()[-3000:]}")
+        time.sleep(0.5)
+    raise AssertionError(f"{name}: waited {limit:.0f} s for the tdgen service to generate its TD (last status "
+                         f"{status}); the robot still runs\n{log.read_text()[-3000:]}")
 
 
 def test_every_zoo_arm_joins_a_lab_gets_its_td_generated_and_moves(lab):
@@ -200,7 +211,7 @@ def test_every_zoo_arm_joins_a_lab_gets_its_td_generated_and_moves(lab):
                                      "--speed", "max", *_robot_args(name), log=lab.tmp / f"{name}.log")
                      for name in batch}
             for name in batch:
-                td = _generated_td(http, name, lab.tmp / f"{name}.log")
+                td = _generated_td(http, name, lab.tmp / f"{name}.log", procs[name])
                 base, tip, n = ZOO[name][2]
                 assert f"arm chain {base} -> {tip}: {n} joints" in (lab.tmp / f"{name}.log").read_text()  # said
                 joints = td["properties"]["getJointposition"]["properties"]

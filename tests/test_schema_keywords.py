@@ -16,7 +16,7 @@ import httpx
 import pytest
 from labs import start_lab
 
-from twinmesh.wot.problem import Refused
+from mesh.wot.problem import Refused
 
 PROBLEM = "application/problem+json"
 GOOD = {"step": 10, "target": "home", "config": {"a": 1}, "when": "2026-11-23T10:00:00Z", "tags": ["a"]}
@@ -72,9 +72,9 @@ def lab(tmp_path_factory):
 @pytest.fixture(scope="module")
 def device(lab):
     """The `keywords` Thing on the lab's mesh; yields what its handlers were given (the device's state)."""
-    from twinmesh.fabric.server import ExposedThing
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
+    from mesh.fabric.server import ExposedThing
+    from mesh.fabric.session import open_session
+    from mesh.fabric.settings import MeshSettings
     settings = MeshSettings(connect=(lab.endpoint,))
     state = dict(GOOD, calls=[])
     with open_session(settings) as session:
@@ -99,9 +99,9 @@ def device(lab):
 
 @pytest.fixture(scope="module")
 def zenoh(lab):
-    from twinmesh.fabric.client import MeshClient
-    from twinmesh.fabric.session import open_session
-    from twinmesh.fabric.settings import MeshSettings
+    from mesh.fabric.client import MeshClient
+    from mesh.fabric.session import open_session
+    from mesh.fabric.settings import MeshSettings
 
     settings = MeshSettings(connect=(lab.endpoint,), mode="client")
     with open_session(settings) as session:
@@ -119,7 +119,7 @@ def test_http_refuses_what_the_schema_forbids(lab, device, prop, value, detail):
 
 @pytest.mark.parametrize("prop, value, detail", BAD, ids=[f"{p}-{v!r}" for p, v, _ in BAD])
 def test_zenoh_refuses_what_the_schema_forbids(device, zenoh, prop, value, detail):
-    from twinmesh.wot.problem import BadInput
+    from mesh.wot.problem import BadInput
 
     before = device[prop]
     with pytest.raises(BadInput) as refused:
@@ -138,7 +138,7 @@ def test_values_the_schema_allows_reach_the_device(lab, device, prop, value):
 
 
 def test_action_input_oneof(lab, device, zenoh):
-    from twinmesh.wot.problem import BadInput
+    from mesh.wot.problem import BadInput
 
     calls = len(device["calls"])
     assert httpx.post(f"{lab.http}/keywords/actions/goTo", json={"slot": 4}).json() == "ok"
@@ -152,7 +152,7 @@ def test_action_input_oneof(lab, device, zenoh):
 
 def _lost(source, served, path="td"):
     """Where `served` lacks or changed a term of `source` (forms, links and security are the server's)."""
-    from twinmesh.wot.td import REWRITTEN_TERMS
+    from mesh.wot.td import REWRITTEN_TERMS
 
     if isinstance(source, dict):
         if not isinstance(served, dict):

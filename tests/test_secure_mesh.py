@@ -19,10 +19,10 @@ import msgspec
 import pytest
 import zenoh
 
+from mesh.fabric.client import MeshClient
+from mesh.fabric.session import open_session
+from mesh.fabric.settings import MeshSettings
 from tests.labs import Lab, start_lab, stop_process, twinmesh_cmd
-from twinmesh.fabric.client import MeshClient
-from twinmesh.fabric.session import open_session
-from twinmesh.fabric.settings import MeshSettings
 
 pytestmark = pytest.mark.timeout(600)
 

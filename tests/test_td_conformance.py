@@ -23,7 +23,7 @@ import pytest
 from interop import npm
 from labs import start_lab
 
-from twinmesh.wot.units import PREFIX, QUDT_UNITS
+from mesh.wot.units import PREFIX, QUDT_UNITS
 
 SAMPLES = "3000"
 THINGS = {"dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2", "color-sensor",
@@ -371,15 +371,36 @@ def test_every_link_relation_is_registered_or_a_uri(tds):
     assert "https://twinmesh.dev/rel/workspace" in rels and "describedby" in rels
 
 
-# --- the Thingweb TD Playground -----------------------------------------------------------------
-def test_every_served_td_and_tdgen_output_passes_the_thingweb_playground(lab, tds, tmp_path):
-    for out, url in (("td", f"{lab.http}/ur10"), ("tm", None)):
+def instantiated(tm: dict, base: str) -> dict:
+    """A TD made from a Thing Model the way TD 1.1 §10 says: its placeholders filled, the `tm:ThingModel`
+    type dropped, `version.instance` given. A model as such is no Thing: no WoT consumer takes one (wotpy
+    wants `version.instance`, node-wot absolute hrefs), so what the consumers are given is this."""
+    td = json.loads(json.dumps(tm).replace("{{BASE_URL}}", base))
+    types = [t for t in ([td["@type"]] if isinstance(td.get("@type"), str) else td.get("@type", []))
+             if t != "tm:ThingModel"]
+    td.pop("@type", None)
+    if types:
+        td["@type"] = types
+    td["version"] = {"instance": str(td.get("version", {}).get("model", "1.0.0"))}
+    return td
+
+
+@pytest.fixture(scope="module")
+def tdgen_documents(lab, tmp_path_factory) -> dict[str, dict]:
+    """What `twinmesh tdgen` writes: a TD for the lab's ur10 URL, and a Thing Model."""
+    out = tmp_path_factory.mktemp("tdgen-out")
+    for kind, url in (("td", f"{lab.http}/ur10"), ("tm", None)):
         done = lab.cli("tdgen", "ur10.urdf", "--samples", "500", "--workers", "1", "--no-progress",
-                       "--out", str(tmp_path / out), *(("--base-url", url) if url else ()), timeout=300)
+                       "--out", str(out / kind), *(("--base-url", url) if url else ()), timeout=300)
         assert done.returncode == 0, done.stderr
+    return {kind: json.loads((out / kind / f"{kind}.json").read_text()) for kind in ("td", "tm")}
+
+
+# --- the Thingweb TD Playground -----------------------------------------------------------------
+def test_every_served_td_and_tdgen_output_passes_the_thingweb_playground(lab, tds, tdgen_documents):
     documents = [{"name": name, "kind": "td", "document": td} for name, td in sorted(tds.items())]
-    documents += [{"name": f"tdgen {kind}.json", "kind": kind,
-                   "document": json.loads((tmp_path / kind / f"{kind}.json").read_text())} for kind in ("td", "tm")]
+    documents += [{"name": f"tdgen {kind}.json", "kind": kind, "document": document}
+                  for kind, document in tdgen_documents.items()]
     results = npm.playground(documents)
     failures = []
     for r in results:
@@ -392,3 +413,95 @@ def test_every_served_td_and_tdgen_output_passes_the_thingweb_playground(lab, td
           f"JSON-LD {sum(r['report']['jsonld'] == 'passed' for r in results)}/{len(results)}")
     assert not failures, "\n".join(failures)
     assert all(r["report"]["jsonld"] == "passed" and r["report"]["schema"] == "passed" for r in results)
+
+
+# --- every WoT consumer: node-wot 0.9.2 and wotpy 0.18.0 -----------------------------------------
+def _readable(td: dict) -> list[str]:
+    return [n for n, p in td.get("properties", {}).items()
+            if not p.get("writeOnly") and any("readproperty" in ops(f) for f in p.get("forms", []))]
+
+
+def _agrees(got: Any, before: Any, after: Any) -> bool:
+    """A consumer's read agrees with plain HTTP reads taken just before and after it: equal to one of
+    them, or, for an object whose live members (a clock) moved between the two, equal in every other."""
+    if got in (before, after):
+        return True
+    if isinstance(got, dict) and isinstance(before, dict) and isinstance(after, dict) and set(got) == set(before):
+        still = [k for k in before if before[k] == after.get(k)]
+        return all(got[k] == before[k] for k in still)
+    return isinstance(got, (int, float)) and isinstance(before, (int, float)) and isinstance(after, (int, float)) \
+        and min(before, after) <= got <= max(before, after)  # a number that moves on (a simulation clock)
+
+
+def test_wotpy_consumes_every_served_td_and_reads_what_http_reads(lab, tds, tdgen_documents):
+    """wotpy, the Python WoT runtime, consumes each Thing of the iot-lab and tdgen's TD and its TM made a TD; every
+    readable property of every served Thing reads the same through wotpy as over plain HTTP."""
+    import asyncio
+
+    pytest.importorskip("wotpy", reason="wotpy is in the test extras: pip install -e '.[test]'")
+    from wotpy.wot.servient import Servient
+    from wotpy.wot.wot import WoT
+
+    async def read_all() -> tuple[list[str], int]:
+        wot = WoT(servient=Servient(catalogue_port=None))
+        wrong, reads = [], 0
+        for kind, document in tdgen_documents.items():
+            try:
+                wot.consume(json.dumps(document if kind == "td" else instantiated(document, f"{lab.http}/ur10")))
+            except Exception as e:  # noqa: BLE001 - any failure of the consumer is the finding
+                wrong.append(f"tdgen {kind}.json: not consumed: {e!r}")
+        async with httpx.AsyncClient(base_url=lab.http, timeout=60) as http:
+            for name, td in sorted(tds.items()):
+                if name == "directory":
+                    continue
+                try:
+                    thing = wot.consume(json.dumps(td))
+                except Exception as e:  # noqa: BLE001
+                    wrong.append(f"{name}: not consumed: {e!r}")
+                    continue
+                for prop in _readable(td):
+                    before = (await http.get(f"/{name}/properties/{prop}")).json()
+                    try:
+                        got = await thing.read_property(prop, timeout=60)
+                    except Exception as e:  # noqa: BLE001
+                        wrong.append(f"{name}.{prop}: wotpy could not read it: {e!r}")
+                        continue
+                    after = (await http.get(f"/{name}/properties/{prop}")).json()
+                    reads += 1
+                    if not _agrees(got, before, after):
+                        wrong.append(f"{name}.{prop}: wotpy read {got!r}, HTTP {before!r} / {after!r}")
+        return wrong, reads
+
+    wrong, reads = asyncio.run(read_all())
+    assert not wrong, "\n".join(wrong)
+    assert reads >= 25, f"only {reads} properties read"  # 14 Things, 26 readable properties
+
+
+def test_node_wot_consumes_every_served_td_and_tdgen_output_and_reads_what_http_reads(lab, tds, tdgen_documents,
+                                                                                       tmp_path):
+    wrong = []
+    for kind, document in tdgen_documents.items():
+        path = tmp_path / f"{kind}.json"
+        path.write_text(json.dumps(document if kind == "td" else instantiated(document, f"{lab.http}/ur10")))
+        try:
+            npm.run_client(path.as_uri(), [{"op": "readProperty", "name": "getJointposition"}])
+        except npm.TDConsumeError as e:
+            wrong.append(f"tdgen {kind}.json: not consumed: {e}")
+    with httpx.Client(base_url=lab.http, timeout=60) as http:
+        for name, td in sorted(tds.items()):
+            if name == "directory":
+                continue
+            readable = _readable(td)
+            before = {p: http.get(f"/{name}/properties/{p}").json() for p in readable}
+            try:
+                results = npm.run_client(f"{lab.http}/{name}", [{"op": "readProperty", "name": p} for p in readable])
+            except npm.TDConsumeError as e:
+                wrong.append(f"{name}: not consumed: {e}")
+                continue
+            after = {p: http.get(f"/{name}/properties/{p}").json() for p in readable}
+            for prop, r in zip(readable, results):
+                if not r["ok"]:
+                    wrong.append(f"{name}.{prop}: node-wot could not read it: {r.get('error')}")
+                elif not _agrees(r["value"], before[prop], after[prop]):
+                    wrong.append(f"{name}.{prop}: node-wot read {r['value']!r}, HTTP {before[prop]!r} / {after[prop]!r}")
+    assert not wrong, "\n".join(wrong)

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from twinmesh.robot.calibration import CalibrationError, fit_calibration, load_calibration, read_pairs
-from twinmesh.robot.workspace import read_points_csv
-from twinmesh.tdgen.generate import generate
+from tdgen.generate import generate
+from tdgen.robot.calibration import CalibrationError, fit_calibration, load_calibration, read_pairs
+from tdgen.robot.workspace import read_points_csv
 
 K, B = np.array([1.02, -0.98, 0.5]), np.array([12.0, -40.0, 100.0])
 
@@ -138,7 +138,7 @@ def test_pairs_in_different_units_are_refused_as_a_mixup_not_fitted(tmp_path):
 def test_the_shipped_uarm_pairs_map_tdgens_points_to_the_real_frame(tmp_path):
     """The shipped uArm pairs are base-frame mm on both sides (the twin's model is the firmware's
     kinematics): the real-frame TD's bounds are the twin frame's, not 1000x them."""
-    from twinmesh.robot.model import ROBOTS_DIR
+    from tdgen.robot.model import ROBOTS_DIR
 
     kwargs = dict(robot="uarm_swift_pro.urdf", samples=3000, seed=1, workers=1)
     twin = generate(**kwargs, out_dir=tmp_path / "twin")

@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from twinmesh.robot.workspace import WorkspaceError, alpha_shape, bounds, convex_hull
-from twinmesh.robot.workspace_check import Workspace, check_target
-from twinmesh.tdgen.generate import generate
+from tdgen.generate import generate
+from tdgen.robot.workspace import WorkspaceError, alpha_shape, bounds, convex_hull
+from tdgen.robot.workspace_check import Workspace, check_target
 
 
 def _cube(n: int = 4000, seed: int = 0) -> np.ndarray:

@@ -6,7 +6,7 @@ import json
 import pytest
 from click.testing import CliRunner
 
-from twinmesh.cli.main import main
+from devices.cli.main import main
 
 NO_JOINT_URDF = """<robot name="statue">
   <link name="base"><collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision></link>
@@ -104,14 +104,14 @@ def test_a_piped_csv_holds_only_csv_and_pybullet_speaks_on_stderr_with_v(tmp_pat
 
     targets = tmp_path / "targets.csv"
     targets.write_text("300,0,400\n200,100,300\n")
-    command = [sys.executable, "-m", "twinmesh", "ik", "xarm/xarm6_robot.urdf", "--targets", str(targets)]
+    command = [sys.executable, "-m", "devices", "ik", "xarm/xarm6_robot.urdf", "--targets", str(targets)]
     quiet = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert quiet.returncode == 0, quiet.stderr
     header, *rows = quiet.stdout.splitlines()
     assert header.startswith("x,y,z,reached_x,reached_y,reached_z,error_mm,") and len(rows) == 2
     assert all(float(v) == float(v) for row in rows for v in row.split(","))  # numbers only
     assert "pybullet" not in quiet.stdout + quiet.stderr and "b3" not in quiet.stdout
-    loud = subprocess.run([sys.executable, "-m", "twinmesh", "-v", *command[3:]], capture_output=True, text=True,
+    loud = subprocess.run([sys.executable, "-m", "devices", "-v", *command[3:]], capture_output=True, text=True,
                           timeout=120)
     assert loud.stdout == quiet.stdout and "pybullet build time" in loud.stderr
 

@@ -11,12 +11,12 @@ import pytest
 import trimesh
 from tdschema import assert_valid_td, assert_valid_tm
 
-from twinmesh.messages.relations import POINTS, SCENE, TWIN, WORKSPACE
-from twinmesh.robot.model import Robot
-from twinmesh.robot.surroundings import load_scene
-from twinmesh.robot.workspace import read_points_csv
-from twinmesh.robot.workspace_check import Workspace
-from twinmesh.tdgen.generate import generate
+from mesh.messages.relations import POINTS, SCENE, TWIN, WORKSPACE
+from tdgen.generate import generate
+from tdgen.robot.model import Robot
+from tdgen.robot.surroundings import load_scene
+from tdgen.robot.workspace import read_points_csv
+from tdgen.robot.workspace_check import Workspace
 
 ROBOTS = ["franka_panda/panda.urdf", "kuka_iiwa/model.urdf", "xarm/xarm6_robot.urdf", "ur10.urdf"]
 SAMPLES = 4000

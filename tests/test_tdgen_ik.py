@@ -8,10 +8,10 @@ import pytest
 from click.testing import CliRunner
 from test_tdgen_kinematics import ROBOTS, level, linkage_urdf, random_q
 
-from twinmesh.cli.ik import ik_command
-from twinmesh.robot import ik
-from twinmesh.robot.kinematics import ForwardKinematics
-from twinmesh.robot.model import Robot
+from tdgen.cli.ik import ik_command
+from tdgen.robot import ik
+from tdgen.robot.kinematics import ForwardKinematics
+from tdgen.robot.model import Robot
 
 
 def within_limits(robot: Robot, q: np.ndarray) -> bool:
@@ -148,7 +148,7 @@ def test_pose_targets_are_reached_within_a_hundredth_of_a_mm_and_of_a_degree(fk)
     finds configurations pybullet agrees put the tip there within 0.01 mm and 0.01 deg."""
     from scipy.spatial.transform import Rotation
 
-    from twinmesh.robot.pose_ik import solve_pose
+    from tdgen.robot.pose_ik import solve_pose
 
     robot = fk.robot
     rng = np.random.default_rng(11)

@@ -8,8 +8,8 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from twinmesh.robot.kinematics import ForwardKinematics
-from twinmesh.robot.model import ROBOTS_DIR, Robot, RobotError
+from tdgen.robot.kinematics import ForwardKinematics
+from tdgen.robot.model import ROBOTS_DIR, Robot, RobotError
 
 ROBOTS = ["franka_panda/panda.urdf", "kuka_iiwa/model.urdf", "xarm/xarm6_robot.urdf", "ur10.urdf"]
 # (urdf, ee): the four arms, plus the Panda to its left finger (a prismatic joint on the chain)

@@ -10,9 +10,9 @@ import pybullet as pb
 import pybullet_data
 import pytest
 
-from twinmesh.robot.collision import CollisionWorld
-from twinmesh.robot.model import Robot
-from twinmesh.robot.surroundings import (
+from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.model import Robot
+from tdgen.robot.surroundings import (
     SCENES_DIR,
     BoxBody,
     CylinderBody,
@@ -154,7 +154,7 @@ def test_a_ceiling_mount_is_a_full_pose_the_collision_check_uses():
 
 
 def test_without_a_scene_the_robot_stands_on_its_mounting_surface_unless_told_otherwise(tmp_path):
-    from twinmesh.tdgen.generate import generate
+    from tdgen.generate import generate
 
     on_floor = generate("ur10.urdf", None, 2000, seed=0, out_dir=tmp_path / "a", workers=1)
     alone = generate("ur10.urdf", None, 2000, seed=0, out_dir=tmp_path / "b", workers=1, surface=False)
@@ -170,7 +170,7 @@ def test_without_a_scene_the_robot_stands_on_its_mounting_surface_unless_told_ot
 def test_a_worlds_scene_json_is_a_scene_for_one_of_its_robots():
     """The iot-platform's scene, as its world Thing serves it, places the uArm (or the Dobot) where it
     stands among the tables and belts; cubes (moving) and the other arm are not surroundings."""
-    from twinmesh.robot.surroundings import SceneError
+    from tdgen.robot.surroundings import SceneError
 
     with pytest.raises(SceneError, match="robots uarm, dobot: say which one"):
         load_scene("iot-platform")
@@ -183,16 +183,16 @@ def test_a_worlds_scene_json_is_a_scene_for_one_of_its_robots():
 
 
 def test_the_shipped_iot_platform_scene_is_what_the_platform_world_serves(tmp_path):
-    from twinmesh.sim.layouts.platform import write_scene_json
+    from devices.sim.layouts.platform import write_scene_json
 
     write_scene_json(tmp_path / "now.json")
     shipped = msgspec.json.decode((SCENES_DIR / "iot-platform.json").read_bytes())
     assert msgspec.json.decode((tmp_path / "now.json").read_bytes()) == shipped, \
-        "regenerate it: python -m twinmesh.sim.layouts.platform"
+        "regenerate it: python -m devices.sim.layouts.platform"
 
 
 def test_the_uarm_generated_where_it_stands_keeps_above_its_table(tmp_path):
-    from twinmesh.tdgen.generate import generate
+    from tdgen.generate import generate
 
     result = generate("uarm_swift_pro.urdf", load_scene("iot-platform", "uarm"), 3000, seed=0, out_dir=tmp_path,
                       workers=1)

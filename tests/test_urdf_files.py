@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from twinmesh.robot.kinematics import ForwardKinematics
-from twinmesh.robot.model import ROBOTS_DIR, Robot, RobotError
+from tdgen.robot.kinematics import ForwardKinematics
+from tdgen.robot.model import ROBOTS_DIR, Robot, RobotError
 
 LINK = '<link name="{0}"><collision><geometry>{1}</geometry></collision></link>'
 BOX = '<box size="0.04 0.04 0.2"/>'

@@ -13,12 +13,12 @@ import pytest
 from labs import REPO, free_port, stop_process
 
 # what the code reads beside its modules
-DATA = ["twinmesh/robot/models/ur10.urdf", "twinmesh/robot/models/uarm_swift_pro.urdf",
-        "twinmesh/robot/models/dobot_magician.urdf", "twinmesh/robot/models/pan-tilt.urdf",
-        "twinmesh/robot/models/uarm-calibration.csv", "twinmesh/robot/scenes/table-and-wall.json",
-        "twinmesh/robot/scenes/cluttered-lab.json", "twinmesh/things/tds/pan-tilt.json",
-        "twinmesh/things/tds/uarm.json", "twinmesh/things/tds/dobot.json", "twinmesh/http/ui/index.html",
-        "twinmesh/http/ui/app.js", "twinmesh/http/ui/style.css"]
+DATA = ["tdgen/robot/models/ur10.urdf", "tdgen/robot/models/uarm_swift_pro.urdf",
+        "tdgen/robot/models/dobot_magician.urdf", "tdgen/robot/models/pan-tilt.urdf",
+        "tdgen/robot/models/uarm-calibration.csv", "tdgen/robot/scenes/table-and-wall.json",
+        "tdgen/robot/scenes/cluttered-lab.json", "devices/things/tds/pan-tilt.json",
+        "devices/things/tds/uarm.json", "devices/things/tds/dobot.json", "mesh/http/ui/index.html",
+        "mesh/http/ui/app.js", "mesh/http/ui/style.css"]
 
 
 @pytest.fixture(scope="module")
@@ -32,21 +32,27 @@ def wheel(tmp_path_factory) -> Path:
 def test_the_wheel_holds_every_data_file(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     assert [d for d in DATA if d not in names] == []
-    assert len([n for n in names if n.startswith("twinmesh/things/tds/")]) == len(
-        list((REPO / "twinmesh" / "things" / "tds").glob("*.json")))
+    assert len([n for n in names if n.startswith("devices/things/tds/")]) == len(
+        list((REPO / "devices" / "things" / "tds").glob("*.json")))
 
 
 def test_the_iot_lab_starts_from_an_installed_wheel(wheel, tmp_path):
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
+    # nothing of the checkout or the test's own environment may leak in (a PYTHONPATH would show pip the
+    # checkout's egg-info as twinmesh already installed)
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120, env=env)
     pip = [str(venv / "bin" / "python"), "-m", "pip", "install", "-q", str(wheel)]
-    installed = subprocess.run(pip, capture_output=True, text=True, timeout=1200)
+    installed = subprocess.run(pip, capture_output=True, text=True, timeout=1200, env=env, cwd=tmp_path)
     assert installed.returncode == 0, installed.stderr[-2000:]
     twinmesh = str(venv / "bin" / "twinmesh")
     elsewhere = tmp_path / "elsewhere"  # not the repository: nothing can be read from the checkout
     elsewhere.mkdir()
+    imports = subprocess.run([str(venv / "bin" / "python"), "-c", "import mesh, tdgen, devices; from mesh import consume; "
+                              "print(mesh.__file__)"], cwd=elsewhere, capture_output=True, text=True, timeout=120,
+                             env=env)
+    assert imports.returncode == 0 and str(venv) in imports.stdout, imports.stderr[-2000:]
     endpoint, port, view = f"tcp/127.0.0.1:{free_port()}", free_port(), free_port()
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     log = tmp_path / "lab.log"
     lab = subprocess.Popen([twinmesh, "--connect", endpoint, "up", "iot-lab", "--speed", "max", "--samples", "2000",
                             "--http", f"127.0.0.1:{port}", "--view", f"127.0.0.1:{view}",

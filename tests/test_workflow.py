@@ -40,7 +40,7 @@ def fresh(client):
 
 
 def slot_position(i: int) -> np.ndarray:
-    from twinmesh.sim.layouts.platform import LAYOUT, UARM_BASE
+    from devices.sim.layouts.platform import LAYOUT, UARM_BASE
 
     real = [LAYOUT.warehouse_x, LAYOUT.warehouse_slots_y[i], LAYOUT.warehouse_floor + LAYOUT.cube / 2]
     return np.asarray(UARM_BASE) + np.asarray(real) / 1000.0
@@ -115,11 +115,11 @@ def test_a_failing_step_makes_the_workflow_exit_non_zero_naming_it(lab, fresh, v
 
 
 def test_the_workflow_function_reports_eight_timed_steps_and_the_colour(fresh):
-    import twinmesh
-    from twinmesh.apps.cube_workflow import cube_workflow
+    import mesh
+    from devices.apps.cube_workflow import cube_workflow
 
     heard = []
-    with twinmesh.consumer(session=fresh.session, settings=fresh.settings) as things:
+    with mesh.consumer(session=fresh.session, settings=fresh.settings) as things:
         run = cube_workflow(things, heard.append, sensor_timeout=60)
     assert [s.number for s in run.steps] == list(range(1, 9)) and heard == run.steps
     assert all(s.seconds > 0 for s in run.steps) and run.seconds >= sum(s.seconds for s in run.steps)
@@ -129,7 +129,7 @@ def test_the_workflow_function_reports_eight_timed_steps_and_the_colour(fresh):
 
 
 def test_colour_names():
-    from twinmesh.apps.cube_workflow import color_name
+    from devices.apps.cube_workflow import color_name
 
     assert [color_name(c) for c in ([219, 31, 26], [31, 168, 56], [31, 71, 219], [242, 209, 26], [0, 0, 0],
                                     [128, 128, 128], [250, 250, 250])] == \

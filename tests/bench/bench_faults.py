@@ -129,7 +129,7 @@ def cut_cable(tmp: Path, runtime: str | None = None) -> dict[str, float] | str:
     why = netns.unavailable()
     if why:
         return f"skipped: {why}"
-    py = [sys.executable, "-m", "twinmesh"]
+    py = [sys.executable, "-m", "devices"]
     env = {"ZENOH_RUNTIME": runtime} if runtime else {}
     with netns.hosts(2) as net:
         a, b = net.hosts

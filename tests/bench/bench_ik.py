@@ -1,4 +1,4 @@
-"""IK benchmark: twinmesh.robot.ik against one pybullet calculateInverseKinematics call, per robot.
+"""IK benchmark: tdgen.robot.ik against one pybullet calculateInverseKinematics call, per robot.
 
 Targets are the FK of random in-limit configurations, so all are reachable. Prints, per robot,
 the share solved within 0.01 mm, the largest error, the median and p99 time per target of
@@ -15,9 +15,9 @@ import time
 import numpy as np
 import pybullet as pb
 
-from twinmesh.robot import ik
-from twinmesh.robot.kinematics import ForwardKinematics
-from twinmesh.robot.model import Robot
+from tdgen.robot import ik
+from tdgen.robot.kinematics import ForwardKinematics
+from tdgen.robot.model import Robot
 
 ROBOTS = ["franka_panda/panda.urdf", "kuka_iiwa/model.urdf", "xarm/xarm6_robot.urdf", "ur10.urdf"]
 

@@ -31,17 +31,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, when run as a script
 
-from twinmesh.robot.collision import CollisionWorld
-from twinmesh.robot.ik import solve, solve_many  # noqa: E402
-from twinmesh.robot.model import Robot  # noqa: E402
-from twinmesh.robot.planning import STEP_MM, NoPath, PathChecker, find_path  # noqa: E402
-from twinmesh.robot.surroundings import Scene, build_into, load_scene  # noqa: E402
-from twinmesh.robot.workspace_check import Workspace  # noqa: E402
-from twinmesh.sim.layouts.lab import LAB, robot_scene  # noqa: E402
-from twinmesh.sim.robot import Base, RobotTwin, placed  # noqa: E402
-from twinmesh.sim.world import World  # noqa: E402
-from twinmesh.tdgen.sampling import sample_workspace  # noqa: E402
-from twinmesh.wot.problem import Problem  # noqa: E402
+from devices.planning.paths import STEP_MM, NoPath, PathChecker, find_path  # noqa: E402
+from devices.sim.layouts.lab import LAB, robot_scene  # noqa: E402
+from devices.sim.robot import Base, RobotTwin, placed  # noqa: E402
+from devices.sim.world import World  # noqa: E402
+from mesh.wot.problem import Problem  # noqa: E402
+from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.ik import solve, solve_many  # noqa: E402
+from tdgen.robot.model import Robot  # noqa: E402
+from tdgen.robot.surroundings import Scene, build_into, load_scene  # noqa: E402
+from tdgen.robot.workspace_check import Workspace  # noqa: E402
+from tdgen.sampling import sample_workspace  # noqa: E402
 
 
 @dataclass(frozen=True)

@@ -15,13 +15,13 @@ import time
 
 import numpy as np
 
-from twinmesh.robot import ik
-from twinmesh.robot.collision import CollisionWorld
-from twinmesh.robot.kinematics import ForwardKinematics
-from twinmesh.robot.model import ROBOTS_DIR, Robot
-from twinmesh.robot.surroundings import load_scene
-from twinmesh.robot.workspace_check import Workspace
-from twinmesh.tdgen.generate import generate
+from tdgen.generate import generate
+from tdgen.robot import ik
+from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.kinematics import ForwardKinematics
+from tdgen.robot.model import ROBOTS_DIR, Robot
+from tdgen.robot.surroundings import load_scene
+from tdgen.robot.workspace_check import Workspace
 
 THESIS_UARM = {"x": (-35.9, 373.5), "y": (-363.0, 363.3), "z": (-30.0, 175.5)}  # the thesis's virtual uArm TD
 SAFE_BOX = {"x": (120.0, 200.0), "y": (-200.0, 200.0), "z": (52.0, 100.0)}      # the real uArm TD's goTo box

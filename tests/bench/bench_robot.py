@@ -32,13 +32,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs
 
 from labs import start_lab, stop_process  # noqa: E402
 
-from twinmesh.fabric.client import MeshClient  # noqa: E402
-from twinmesh.fabric.session import open_session  # noqa: E402
-from twinmesh.fabric.settings import MeshSettings  # noqa: E402
-from twinmesh.robot.model import Robot  # noqa: E402
-from twinmesh.robot.surroundings import build_into, load_scene  # noqa: E402
-from twinmesh.sim.robot import Base, RobotTwin, workspace_from_csv  # noqa: E402
-from twinmesh.sim.world import PEAK_SPEED, World  # noqa: E402
+from devices.sim.robot import Base, RobotTwin, workspace_from_csv  # noqa: E402
+from devices.sim.world import PEAK_SPEED, World  # noqa: E402
+from mesh.fabric.client import MeshClient  # noqa: E402
+from mesh.fabric.session import open_session  # noqa: E402
+from mesh.fabric.settings import MeshSettings  # noqa: E402
+from tdgen.robot.model import Robot  # noqa: E402
+from tdgen.robot.surroundings import build_into, load_scene  # noqa: E402
 
 
 def poll_td(http: str, name: str, generated: bool, timeout: float = 600.0) -> float:

@@ -108,9 +108,9 @@ def _zenoh_reads(endpoint: str, devices: list[str]) -> list[float]:
     sample = devices[:20] + random.choices(devices, k=READS)
     code = f"""
 import json, sys, time
-from twinmesh.fabric.client import MeshClient
-from twinmesh.fabric.session import one_shot_session
-from twinmesh.fabric.settings import MeshSettings
+from mesh.fabric.client import MeshClient
+from mesh.fabric.session import one_shot_session
+from mesh.fabric.settings import MeshSettings
 targets = {{"belt": "speed", "infrared": "objectPresence", "color": "lux", "light": "lightState", "climate": "humidity"}}
 devices = json.load(sys.stdin)
 s = MeshSettings(connect=({endpoint!r},))
@@ -196,7 +196,7 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
     other hosts run no router, their devices link straight to the lab's router (`--join --direct`)."""
     from contextlib import ExitStack
 
-    from twinmesh.things.fleet import KINDS, fleet_names
+    from devices.things.fleet import KINDS, fleet_names
 
     with ExitStack() as stack:
         if hosts > 1:

@@ -18,11 +18,11 @@ import resource
 import tempfile
 import time
 
-from twinmesh.robot.model import Robot
-from twinmesh.robot.surroundings import load_scene
-from twinmesh.robot.workspace import convex_hull
-from twinmesh.tdgen.generate import generate
-from twinmesh.tdgen.sampling import sample_workspace
+from tdgen.generate import generate
+from tdgen.robot.model import Robot
+from tdgen.robot.surroundings import load_scene
+from tdgen.robot.workspace import convex_hull
+from tdgen.sampling import sample_workspace
 
 THESIS = {"cluttered-lab": ("UR10, 605 objects", 375.0), "table-and-wall": ("UR3, 2 objects", 13.7)}
 

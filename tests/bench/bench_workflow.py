@@ -3,7 +3,7 @@
 Starts `twinmesh up iot-platform --speed max` (then `--speed 1`) on free ports and, for each:
 - idle: CPU (% of one core, user+system, summed over the supervisor and all its processes) and
   resident memory (RSS per process and summed; shared pages count once per process) over a few s;
-- the workflow over Zenoh (`twinmesh.apps.cube_workflow.cube_workflow`, a `twinmesh.consumer` on a session; at speed max also
+- the workflow over Zenoh (`devices.apps.cube_workflow.cube_workflow`, a `mesh.consumer` on a session; at speed max also
   over the HTTP adapter with a consumer given its base URL): wall time, simulated time (the world Thing's
   `simTime` before and after), and the lab's CPU and peak RSS meanwhile.
 
@@ -93,7 +93,7 @@ def lab_at(speed: str, tmp: Path):
 
 
 def one_run(lab, client, consumer, label: str) -> None:
-    from twinmesh.apps.cube_workflow import cube_workflow
+    from devices.apps.cube_workflow import cube_workflow
 
     client.invoke("world", "reset")
     sim0 = client.read("world", "simTime")
@@ -106,7 +106,7 @@ def one_run(lab, client, consumer, label: str) -> None:
 
 
 def bench(speed: str, runs: int, idle: float, http: bool, tmp: Path) -> None:
-    import twinmesh
+    import mesh
 
     print(f"twinmesh up iot-platform --speed {speed}")
     with lab_at(speed, tmp) as lab, mesh_client(lab.endpoint) as client:
@@ -116,10 +116,10 @@ def bench(speed: str, runs: int, idle: float, http: bool, tmp: Path) -> None:
             time.sleep(idle)
         meter.report("idle")
         for i in range(runs):
-            with twinmesh.consumer(session=client.session, settings=client.settings) as things:
+            with mesh.consumer(session=client.session, settings=client.settings) as things:
                 one_run(lab, client, things, f"over Zenoh #{i + 1}")
         if http:
-            with twinmesh.consumer(base=lab.http) as things:
+            with mesh.consumer(base=lab.http) as things:
                 one_run(lab, client, things, "over HTTP")
 
 

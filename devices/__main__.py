@@ -1,0 +1,3 @@
+from devices.cli.main import main
+
+main()

@@ -1,0 +1,1 @@
+"""Motion planning: collision-free joint paths (OMPL glue)."""

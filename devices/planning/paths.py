@@ -1,0 +1,199 @@
+"""Collision-free joint paths: a dense check of the straight joint-space path, OMPL where it collides.
+
+The check is exact to a stated resolution: between two checked states of a segment no point of
+any link moves more than `step_mm` (default 5 mm), by the bound `sum(|dq_i| * radius_i)` of
+`CollisionWorld.sweep_radii`. States are checked in bisection order, so a colliding segment is
+usually found out after a few checks.
+
+Where the straight path collides, OMPL's RRTConnect plans in the same collision world (a plain
+callable is its state validity checker; the planner never knows how validity is computed) to any
+of the goal configurations given, within a time budget; the path is simplified by OMPL and then
+checked again by the dense check above, so a planner that was too coarse can never hand back a
+colliding path: the plan is repeated at a finer planner resolution while the budget lasts.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from tdgen.robot.collision import CollisionWorld
+
+STEP_MM = 5.0            # no point of the robot moves further than this between two checked states
+PLANNING_BUDGET_S = 1.0  # default time a plan may take
+_COARSE = 20.0           # the planner's own motion checks are this much coarser than STEP_MM at first
+_RANGE = 1.0             # RRTConnect's longest extension (rad or m): short ones waste fewer checks
+
+
+@dataclass(frozen=True)
+class JointPath:
+    """Waypoints (K, n) in SI units, first = start, last = goal; how they were found and at what cost."""
+
+    waypoints: np.ndarray
+    method: str          # "straight" | "planned"
+    planning_ms: float
+    checks: int          # collision checks made to find and verify it
+
+
+@dataclass
+class NoPath(Exception):
+    """No collision-free path within the budget: what was tried, for the refusal's details."""
+
+    detail: str
+    tried: dict = field(default_factory=dict)
+
+    def __str__(self) -> str:
+        return self.detail
+
+
+class PathChecker:
+    """Collision checks of states and straight segments in one CollisionWorld (not thread-safe)."""
+
+    def __init__(self, world: CollisionWorld, step_mm: float = STEP_MM):
+        self.world = world
+        self.step_m = step_mm / 1000.0
+        self.radii = world.sweep_radii()
+        self.checks = 0
+
+    def free(self, q: np.ndarray) -> bool:
+        self.checks += 1
+        return not self.world.collides(q)
+
+    def subdivisions(self, a: np.ndarray, b: np.ndarray, step_m: float | None = None) -> int:
+        """How many equal parts a->b needs so that no point moves more than the step within one."""
+        sweep = float(np.sum(np.abs(np.asarray(b) - np.asarray(a)) * self.radii))
+        return max(1, math.ceil(sweep / (step_m or self.step_m)))
+
+    def segment_free(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """Whether every state of a->b at the resolution is free (a itself is not checked)."""
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        n = self.subdivisions(a, b)
+        for k in _bisection_order(n):
+            if not self.free(a + (b - a) * (k / n)):
+                return False
+        return True
+
+    def path_free(self, waypoints: np.ndarray) -> bool:
+        return all(self.segment_free(p, q) for p, q in zip(waypoints[:-1], waypoints[1:]))
+
+
+def _bisection_order(n: int) -> list[int]:
+    """1..n, the end first, then midpoints of ever finer halves: collisions show up early."""
+    order, seen = [n], {0, n}
+    parts = 2
+    while len(order) < n:
+        for j in range(1, parts, 2):
+            k = round(j * n / parts)
+            if k not in seen:
+                seen.add(k)
+                order.append(k)
+        parts *= 2
+        if parts > 2 * n:
+            order += [k for k in range(1, n) if k not in seen]
+            break
+    return order
+
+
+def find_path(checker: PathChecker, start: np.ndarray, goals: Sequence[np.ndarray], lows: np.ndarray,
+              highs: np.ndarray, budget_s: float = PLANNING_BUDGET_S) -> JointPath:
+    """A collision-free path from `start` to one of `goals` (tried in the order given): straight if
+    one is free, else planned. Raises NoPath with what was tried."""
+    started, checks0 = time.perf_counter(), checker.checks
+    start = np.asarray(start, dtype=float)
+    for goal in goals:
+        if checker.segment_free(start, goal):
+            return JointPath(np.array([start, goal]), "straight", _ms(started), checker.checks - checks0)
+    if not checker.free(start):
+        raise NoPath("the robot collides where it stands, so no path can leave it",
+                     {"start_collides": True})
+    tried: dict = {"straight": len(goals), "planner": "RRTConnect", "budget_s": budget_s, "attempts": 0}
+    resolution = checker.step_m * _COARSE
+    while True:
+        left = budget_s - (time.perf_counter() - started)
+        if left <= 0.005:
+            break
+        tried["attempts"] += 1
+        for path in _ompl_paths(checker, start, goals, lows, highs, resolution, left):
+            if checker.path_free(path):
+                return JointPath(path, "planned", _ms(started), checker.checks - checks0)
+        if resolution <= checker.step_m:
+            tried["resolution_mm"] = resolution * 1000
+        resolution = max(checker.step_m, resolution / 2)
+    tried["checks"] = checker.checks - checks0
+    raise NoPath(f"no collision-free path found within {budget_s:g} s (RRTConnect, {tried['attempts']} "
+                 f"attempt{'s' if tried['attempts'] != 1 else ''}, {len(goals)} goal configuration"
+                 f"{'s' if len(goals) != 1 else ''})", tried)
+
+
+def _ms(started: float) -> float:
+    return round((time.perf_counter() - started) * 1000.0, 3)
+
+
+_quiet = False
+
+
+def _silence_ompl() -> None:
+    global _quiet
+    if not _quiet:
+        from ompl import util as ou
+
+        ou.setLogLevel(ou.LOG_NONE)
+        _quiet = True
+
+
+def _ompl_paths(checker: PathChecker, start: np.ndarray, goals: Sequence[np.ndarray], lows: np.ndarray,
+                highs: np.ndarray, resolution_m: float, budget_s: float) -> list[np.ndarray]:
+    """RRTConnect from start to any goal; the simplified path and then the raw one (each may still
+    clip an obstacle between the planner's coarser checks: the caller checks them densely)."""
+    from ompl import base as ob
+    from ompl import geometric as og
+
+    _silence_ompl()
+    n = len(start)
+    space = ob.RealVectorStateSpace(n)
+    bounds = ob.RealVectorBounds(n)
+    for i in range(n):
+        bounds.setLow(i, float(lows[i]))
+        bounds.setHigh(i, float(highs[i]))
+    space.setBounds(bounds)
+    setup = og.SimpleSetup(space)
+    setup.setStateValidityChecker(lambda s: checker.free(np.array([s[i] for i in range(n)])))
+    si = setup.getSpaceInformation()
+    # the planner checks motions every `fraction` of the space's extent; a joint step of size d
+    # moves no point more than d * |radii| (Cauchy-Schwarz), so this keeps its checks near resolution_m
+    step = resolution_m / max(float(np.linalg.norm(checker.radii)), 1e-9)
+    si.setStateValidityCheckingResolution(min(0.05, step / space.getMaximumExtent()))
+
+    def state(values: np.ndarray):
+        s = space.allocState()
+        for i, v in enumerate(values):
+            s[i] = float(v)
+        return s
+
+    goal = ob.GoalStates(si)
+    for g in goals:
+        goal.addState(state(np.clip(g, lows, highs)))
+    setup.setStartState(state(start))
+    setup.setGoal(goal)
+    planner = og.RRTConnect(si)
+    if _RANGE > 0:
+        planner.setRange(_RANGE)
+    setup.setPlanner(planner)
+    deadline = time.perf_counter() + budget_s
+    setup.solve(budget_s)
+    if not setup.haveExactSolutionPath():
+        return []
+    raw = _states(setup.getSolutionPath(), n)
+    setup.simplifySolution(max(0.0, min(0.25, deadline - time.perf_counter())))
+    simplified = _states(setup.getSolutionPath(), n)
+    for path in (simplified, raw):  # exact ends: the start and the goal as given, not as float-copied
+        path[0] = start
+        path[-1] = min(goals, key=lambda g: float(np.abs(np.asarray(g) - path[-1]).max()))
+    return [simplified, raw]
+
+
+def _states(path, n: int) -> np.ndarray:
+    return np.array([[path.getState(k)[i] for i in range(n)] for k in range(path.getStateCount())])

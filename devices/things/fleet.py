@@ -1,0 +1,182 @@
+"""A fleet of virtual devices for load tests: `twinmesh up fleet --fleet N`.
+
+Devices come in stations of five, `belt-<n>`, `infrared-<n>`, `color-<n>`, `light-<n>` and
+`climate-<n>` (station n): the belt, beam and colour sensor are the iot-platform's (their TDs, their
+bindings, their events: a running belt's parcels pass the beam, `detectedObject` fires), the light
+is the lab's light, and the climate sensor publishes a noisy temperature and humidity every second
+(`interval`, writable). Models come from `devices.sim.stations`, without a physics world.
+
+Each device is its own Zenoh session (a client of the host's router) with its own liveliness
+token; a process's devices share one ticker thread and the process's query and action workers.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from contextlib import ExitStack
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any, Callable
+
+from mesh.fabric.keys import Keys
+from mesh.fabric.server import ExposedThing
+from mesh.fabric.settings import MeshSettings
+from mesh.wot import units
+from mesh.wot.td import ThingDescription, decode_td, thing_id
+
+log = logging.getLogger(__name__)
+
+KINDS = ("belt", "infrared", "color", "light", "climate")
+DEFAULT_FLEET = 100
+REFERENCE = {"belt": "conveyor-belt-1", "infrared": "infrared-sensor-1", "color": "color-sensor"}
+Cleanup = Callable[[], None]
+
+
+@dataclass(frozen=True)
+class FleetDevice:
+    """The `index`-th device of a fleet whose first station is `first`: its kind, station and name."""
+
+    index: int
+    first: int = 1
+
+    @property
+    def kind(self) -> str:
+        return KINDS[self.index % len(KINDS)]
+
+    @property
+    def station(self) -> int:
+        return self.first + self.index // len(KINDS)
+
+    @property
+    def name(self) -> str:
+        return f"{self.kind}-{self.station}"
+
+
+def fleet_names(count: int, first: int = 1) -> list[str]:
+    """The names of a fleet of `count` devices, stations numbered from `first`."""
+    return [FleetDevice(i, first).name for i in range(count)]
+
+
+def split(count: int, parts: int) -> list[tuple[int, int]]:
+    """Device index ranges [start, end) for `parts` processes, cut between stations (a beam stays with its belt)."""
+    stations = -(-count // len(KINDS))
+    parts = max(1, min(parts, stations))
+    cuts = [round(stations * p / parts) * len(KINDS) for p in range(parts + 1)]
+    return [(lo, min(hi, count)) for lo, hi in zip(cuts, cuts[1:]) if lo < min(hi, count)]
+
+
+@lru_cache(maxsize=None)
+def _reference_td(kind: str) -> str:
+    from devices.things.platform import twin_td_json
+
+    return twin_td_json(REFERENCE[kind]).decode()
+
+
+_DESCRIPTIONS = {
+    "belt": "Conveyor belt of fleet station {n}: while it runs, parcels (30 mm, one every 150 mm) pass "
+            "infrared-{n} and color-{n}.",
+    "infrared": "Infrared beam at the end of belt-{n} (fleet station {n}): objectPresence is true while a parcel "
+                "cuts it.",
+    "color": "Colour sensor under the beam of belt-{n} (fleet station {n}): the colour of the parcel at the beam.",
+    "light": "Virtual light of fleet station {n}.",
+    "climate": "Temperature and relative humidity sensor of fleet station {n}: a reading (with noise) every "
+               "`interval` seconds, published to observers.",
+}
+FLEET_NOTE = "(twinmesh virtual device of a fleet)"
+
+
+def _description(device: FleetDevice) -> str:
+    return f"{_DESCRIPTIONS[device.kind].format(n=device.station)} {FLEET_NOTE}"
+
+
+def device_td(device: FleetDevice) -> ThingDescription:
+    """The TD a fleet device serves: the lab's device's, with its own id, title and description."""
+    name, description = device.name, _description(device)
+    if device.kind == "light":
+        from devices.things.lights import light_td
+
+        return light_td(name, description)
+    if device.kind == "climate":
+        return climate_td(name, description)
+    td = json.loads(_reference_td(device.kind))
+    td.update(id=thing_id(name), title=name,
+              description=f"{description} As the lab's {REFERENCE[device.kind]}: {td['description']}")
+    return decode_td(td)
+
+
+def climate_td(name: str, description: str) -> ThingDescription:
+    return decode_td({
+        "title": name, "id": thing_id(name), "description": description,
+        "properties": {
+            "temperature": {"title": "Temperature", "type": "number", "unit": units.CELSIUS,
+                            "minimum": -40, "maximum": 85, "readOnly": True, "writeOnly": False, "observable": True},
+            "humidity": {"title": "Relative humidity", "type": "number", "unit": units.PERCENT,
+                         "minimum": 0, "maximum": 100, "readOnly": True, "writeOnly": False, "observable": True},
+            "interval": {"title": "Reading interval", "description": "Seconds between two published readings.",
+                         "type": "number", "unit": units.SECOND, "minimum": 0.1, "maximum": 3600,
+                         "readOnly": False, "writeOnly": False, "observable": False},
+        },
+    })
+
+
+def expose(session, device: FleetDevice, ticker, stations: dict[int, Any], keys: Keys
+           ) -> tuple[ExposedThing, Cleanup]:
+    """An ExposedThing (not exposed yet) serving `device`, and what undoes its bindings. A station's belt,
+    beam and colour sensor share one model (`stations`, by station number)."""
+    from devices.sim.stations import Climate, Station
+    from devices.things.platform import bind_belt, bind_color_sensor, bind_infrared
+
+    kind, n = device.kind, device.station
+    if kind == "light":
+        from devices.things.lights import Light
+
+        return Light(session, device.name, keys, description=_description(device)).thing, _nothing
+    thing = ExposedThing(session, device_td(device), device.name, keys)
+    if kind == "climate":
+        def publish(temperature: float, humidity: float) -> None:
+            thing.emit_property_change("temperature", temperature)
+            thing.emit_property_change("humidity", humidity)
+
+        climate = Climate(device.name, ticker, publish, seed=n)
+
+        def write_interval(value: float) -> None:
+            climate.interval = value
+
+        thing.on_read("temperature", lambda: climate.temperature).on_read("humidity", lambda: climate.humidity)
+        thing.on_read("interval", lambda: climate.interval).on_write("interval", write_interval)
+        return thing, _nothing
+    station = stations.get(n)
+    if station is None:
+        station = stations[n] = Station(f"station-{n}", ticker, offset_mm=n * 37.0)
+    if kind == "belt":
+        return thing, bind_belt(thing, station.belt)
+    if kind == "infrared":
+        return thing, bind_infrared(thing, station.infrared)
+    return thing, bind_color_sensor(thing, station.color_sensor)
+
+
+def _nothing() -> None:
+    return None
+
+
+def run(settings: MeshSettings, stop: threading.Event, start: int, end: int, first: int = 1) -> None:
+    """Process entry: serve the fleet's devices `start`..`end - 1` (stations from `first`) until `stop` is set."""
+    from devices.sim.stations import Ticker
+    from mesh.fabric.session import open_session
+
+    ticker = Ticker()
+    stations: dict[int, Any] = {}
+    with ExitStack() as stack:
+        for index in range(start, end):
+            if stop.is_set():
+                return
+            device = FleetDevice(index, first)
+            session = stack.enter_context(open_session(settings, thing=device.name))
+            thing, cleanup = expose(session, device, ticker, stations, settings.keys)
+            stack.enter_context(thing)
+            stack.callback(cleanup)
+        stack.callback(ticker.stop)  # first on the way out: no reading is published to a closed Thing
+        ticker.start()
+        log.info("fleet: devices %s..%s on the mesh", FleetDevice(start, first).name, FleetDevice(end - 1, first).name)
+        stop.wait()

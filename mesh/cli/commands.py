@@ -1,0 +1,199 @@
+"""The mesh's commands: its router, the HTTP adapter, the recorder, and a mesh client's (things, td,
+read, write, invoke, observe, subscribe). The root `twinmesh` group (devices.cli.main) adds them."""
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import click
+import msgspec
+
+from mesh.cli import completion
+from mesh.cli.client import mesh_client
+from mesh.fabric.client import NOTHING
+from mesh.fabric.settings import MeshSettings
+from mesh.process import install_stop_handlers
+
+
+def checked_auth(value: str | None) -> str | None:
+    """Check `--auth` early (a typo must not start an open adapter); the string goes to the adapter."""
+    from mesh.http.credentials import parse_auth
+
+    try:
+        parse_auth(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--auth") from None
+    return value or None
+
+
+AUTH_HELP = "HTTP security: bearer:TOKEN or basic:USER:PASS [env TWINMESH_HTTP_AUTH]."
+
+
+def host_port(value: str) -> tuple[str, int]:
+    host, _, port = value.rpartition(":")
+    if not host or not port.isdigit():
+        raise click.BadParameter(f"{value!r} is not HOST:PORT")
+    return host, int(port)
+
+
+@click.command()
+@click.pass_obj
+def router(settings: MeshSettings) -> None:
+    """Run the lab's Zenoh router (where peers connect; listens on --listen or the --connect endpoints)."""
+    from mesh.fabric.session import run_router_process
+
+    listen = list(settings.listen) or list(settings.connect)
+    run_router_process(settings, install_stop_handlers(), listen=listen)
+
+
+@click.command()
+@click.option("--http", "http", default="127.0.0.1:8080", show_default=True, help="Listen on HOST:PORT.")
+@click.option("--auth", envvar="TWINMESH_HTTP_AUTH", metavar="SCHEME:CREDENTIALS", help=AUTH_HELP)
+@click.pass_obj
+def adapter(settings: MeshSettings, http: str, auth: str | None) -> None:
+    """Run the WoT HTTP adapter for every Thing on the mesh (in a secure lab, with its token unless --auth)."""
+    if settings.secrets is not None and not auth:
+        from mesh.fabric.secrets import LabSecrets, SecretsError
+
+        try:
+            auth = f"bearer:{LabSecrets(settings.secrets).http_token()}"
+        except SecretsError as e:
+            raise click.ClickException(str(e)) from None
+    from mesh.http.server import run
+
+    run(settings, install_stop_handlers(), address=host_port(http), auth=checked_auth(auth))
+
+
+@click.command()
+@click.argument("path", required=False, type=click.Path(dir_okay=False))
+@click.option("--repair", is_flag=True, help="Make the recording at PATH valid again (one cut short by a crash "
+              "or kill -9 has no footer); the original is kept as PATH.broken.")
+@click.pass_obj
+def record(settings: MeshSettings, path: str | None, repair: bool) -> None:
+    """Record the mesh to a Rerun .rrd file until Ctrl-C [default: recordings/twinmesh-DATE-TIME.rrd]."""
+    if repair:
+        from mesh.recorder.repair import RepairError, repair_recording
+
+        if path is None:
+            raise click.UsageError("--repair needs the PATH of the recording")
+        try:
+            click.echo(repair_recording(path))
+        except RepairError as e:
+            raise click.ClickException(str(e)) from None
+        return
+    from mesh.recorder.logger import run
+
+    run(settings, install_stop_handlers(), path=path)
+
+
+# --- consuming, as a plain Zenoh peer --------------------------------------------------------
+
+
+def parse_json(text: str, what: str) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise click.BadParameter(f"{what} is not valid JSON ({e.msg} at column {e.colno}): {text!r}") from None
+
+
+def echo_json(value: Any) -> None:
+    click.echo(msgspec.json.encode(value).decode())
+
+
+@click.command()
+@click.option("--sort", "sort", is_flag=True, help="Sort the names (waits for the last answer first).")
+@click.pass_obj
+def things(settings: MeshSettings, sort: bool) -> None:
+    """List the Things alive on the mesh, one per line as their answers arrive."""
+    with mesh_client(settings) as c:
+        for name in (c.things() if sort else c.iter_things()):
+            click.echo(name)
+
+
+@click.command()
+@click.argument("thing", shell_complete=completion.things)
+@click.pass_obj
+def td(settings: MeshSettings, thing: str) -> None:
+    """Print a Thing's TD (with its Zenoh forms)."""
+    with mesh_client(settings) as c:
+        click.echo(json.dumps(json.loads(c.td_bytes(thing)), indent=2))
+
+
+@click.command()
+@click.argument("thing", shell_complete=completion.things)
+@click.argument("prop", shell_complete=completion.properties)
+@click.pass_obj
+def read(settings: MeshSettings, thing: str, prop: str) -> None:
+    """Read a property."""
+    with mesh_client(settings) as c:
+        echo_json(c.read(thing, prop))
+
+
+@click.command()
+@click.argument("thing", shell_complete=completion.things)
+@click.argument("prop", shell_complete=completion.writable_properties)
+@click.argument("value")
+@click.pass_obj
+def write(settings: MeshSettings, thing: str, prop: str, value: str) -> None:
+    """Write a property (VALUE is JSON, e.g. true, 42, '[1,0,0]')."""
+    data = parse_json(value, "VALUE")
+    with mesh_client(settings) as c:
+        c.write(thing, prop, data)
+
+
+@click.command()
+@click.argument("thing", shell_complete=completion.things)
+@click.argument("action", shell_complete=completion.actions)
+@click.argument("input", required=False)
+@click.pass_obj
+def invoke(settings: MeshSettings, thing: str, action: str, input: str | None) -> None:
+    """Invoke an action (INPUT is JSON) and print its output."""
+    data = NOTHING if input is None else parse_json(input, "INPUT")
+    with mesh_client(settings) as c:
+        out = c.invoke(thing, action, data)
+        if out is not None:
+            echo_json(out)
+
+
+def _follow(settings: MeshSettings, subscribe_name: str, thing: str, name: str, count: int | None) -> None:
+    import queue
+
+    q: queue.Queue = queue.Queue()
+    with mesh_client(settings) as c:
+        found = c.check_affordance(thing, "properties" if subscribe_name == "observe" else "events", name)
+        if subscribe_name == "observe" and not getattr(found, "observable", False):
+            raise click.ClickException(f"property {name!r} of {thing} is not observable")
+        sub = getattr(c, subscribe_name)(thing, name, q.put)
+        click.echo(f"{subscribe_name} {thing}/{name}: waiting for changes (Ctrl-C to stop)", err=True)
+        seen = 0
+        try:
+            while count is None or seen < count:
+                try:
+                    echo_json(q.get(timeout=0.5))
+                    seen += 1
+                except queue.Empty:
+                    continue
+        except KeyboardInterrupt:
+            pass
+        finally:
+            sub.undeclare()
+
+
+@click.command()
+@click.argument("thing", shell_complete=completion.things)
+@click.argument("prop", shell_complete=completion.observable_properties)
+@click.option("--count", type=int, help="Stop after this many changes.")
+@click.pass_obj
+def observe(settings: MeshSettings, thing: str, prop: str, count: int | None) -> None:
+    """Print each change of a property (one JSON value per line) until Ctrl-C."""
+    _follow(settings, "observe", thing, prop, count)
+
+
+@click.command()
+@click.argument("thing", shell_complete=completion.things)
+@click.argument("event", shell_complete=completion.events)
+@click.option("--count", type=int, help="Stop after this many events.")
+@click.pass_obj
+def subscribe(settings: MeshSettings, thing: str, event: str, count: int | None) -> None:
+    """Print each event (one JSON value per line) until Ctrl-C."""
+    _follow(settings, "subscribe", thing, event, count)

@@ -1,0 +1,196 @@
+"""The WoT HTTP binding's client side: performs the http(s) forms of any TD (twinmesh's adapter, node-wot's
+servient, the real lab) for `mesh.wot.consumed`.
+
+Methods follow the form's `htv:methodName`, else the HTTP binding's defaults per op. Observations
+and events use SSE forms (`subprotocol: sse`); long-poll forms are left to clients that want them.
+Error answers become `Problem`s: problem+json as it came, anything else by its status code.
+"""
+from __future__ import annotations
+
+import json
+import socket
+import threading
+from typing import Any
+
+import httpx
+import msgspec
+
+from mesh.http.credentials import parse_auth as parse_credentials
+from mesh.wot.consumed import NOTHING, Callback
+from mesh.wot.invocation import ActionStatus
+from mesh.wot.problem import BadGateway, Problem, TimedOut
+from mesh.wot.td import Form
+
+DEFAULT_METHODS = {"readproperty": "GET", "writeproperty": "PUT", "invokeaction": "POST",
+                   "readallproperties": "GET", "readmultipleproperties": "GET", "writeallproperties": "PUT",
+                   "writemultipleproperties": "PUT", "queryaction": "GET", "cancelaction": "DELETE",
+                   "queryallactions": "GET", "observeproperty": "GET", "subscribeevent": "GET"}
+PROBLEM = "application/problem+json"
+
+
+def parse_auth(auth: str | None) -> httpx.Auth | None:
+    """`bearer:TOKEN` or `basic:USER:PASS` (as `twinmesh up --auth` takes it) as an httpx auth."""
+    credentials = parse_credentials(auth)
+    return None if credentials is None else credentials.httpx_auth()
+
+
+def problem_of(r: httpx.Response) -> Problem:
+    if r.headers.get("content-type", "").startswith(PROBLEM):
+        return Problem.from_json(r.content)
+    return Problem(f"{r.request.method} {r.request.url}: HTTP {r.status_code} {r.text[:200]}", status=r.status_code)
+
+
+class HttpClient:
+    """A `mesh.wot.consumed.ProtocolClient` over httpx, with one connection pool for every Thing."""
+
+    schemes = ("http", "https")
+
+    def __init__(self, auth: str | httpx.Auth | None = None, timeout: float = 10.0, action_timeout: float = 300.0):
+        self.http = httpx.Client(auth=parse_auth(auth) if isinstance(auth, str) or auth is None else auth,
+                                 timeout=httpx.Timeout(timeout), headers={"Accept": "application/json"})
+        self.action_timeout = action_timeout
+
+    def accepts(self, form: Form, op: str) -> bool:
+        if op in ("observeproperty", "subscribeevent"):
+            return form.subprotocol == "sse"
+        return form.subprotocol is None
+
+    def _send(self, form: Form, op: str, href: str | None = None, body: Any = NOTHING, timeout: float | None = None,
+              **kwargs: Any) -> httpx.Response:
+        method = form.method or DEFAULT_METHODS[op]
+        if body is not NOTHING:
+            kwargs["content"] = json.dumps(body).encode()
+            kwargs["headers"] = {"Content-Type": form.contentType or "application/json"}
+        try:
+            r = self.http.request(method, href or form.href, timeout=timeout or httpx.USE_CLIENT_DEFAULT, **kwargs)
+        except httpx.TimeoutException as e:
+            raise TimedOut(f"{method} {href or form.href}: no answer in time ({e})") from None
+        except httpx.HTTPError as e:
+            raise BadGateway(f"{method} {href or form.href}: {e}") from None
+        if r.status_code >= 400:
+            raise problem_of(r)
+        return r
+
+    @staticmethod
+    def _json(r: httpx.Response) -> Any:
+        if not r.content:
+            return None
+        try:
+            return r.json()
+        except ValueError:
+            raise BadGateway(f"{r.request.url} answered no JSON: {r.text[:100]!r}") from None
+
+    def fetch_td(self, url: str) -> dict[str, Any]:
+        td = self._json(self._send(Form(href=url), "readproperty", headers={"Accept": "application/td+json"}))
+        if not isinstance(td, dict):
+            raise BadGateway(f"{url} answered no TD")
+        return td
+
+    def read(self, form: Form) -> Any:
+        return self._json(self._send(form, "readproperty"))
+
+    def write(self, form: Form, value: Any) -> None:
+        self._send(form, "writeproperty", body=value)
+
+    def invoke(self, form: Form, input: Any) -> Any:
+        return self._json(self._send(form, "invokeaction", body=input, timeout=self.action_timeout))
+
+    def invoke_async(self, form: Form, input: Any) -> ActionStatus:
+        r = self._send(form, "invokeaction", body=input)
+        status = _status(self._json(r))
+        location = r.headers.get("location")
+        return status if status.href or not location else _replace_href(status, str(r.url.join(location)))
+
+    def query_action(self, href: str) -> ActionStatus:
+        return _status(self._json(self._send(Form(href=href), "queryaction")))
+
+    def cancel_action(self, href: str) -> ActionStatus | None:
+        r = self._send(Form(href=href), "cancelaction")
+        return _status(self._json(r)) if r.status_code != 204 and r.content else None
+
+    def read_multiple(self, form: Form, names: list[str]) -> dict[str, Any]:
+        values = self._json(self._send(form, "readmultipleproperties", params={"names": ",".join(names)}))
+        if not isinstance(values, dict):
+            raise BadGateway(f"{form.href} answered no property map")
+        return values  # a server that ignores `names` answers all: the caller keeps those it asked for
+
+    def query_all_actions(self, form: Form) -> dict[str, list[ActionStatus]]:
+        found = self._json(self._send(form, "queryallactions")) or {}
+        return {name: [_status(s) for s in statuses] for name, statuses in found.items()}
+
+    def observe(self, form: Form, callback: Callback) -> "SseSubscription":
+        return SseSubscription(self.http, form.href, callback)
+
+    def close(self) -> None:
+        self.http.close()
+
+
+def _status(data: Any) -> ActionStatus:
+    try:
+        return msgspec.convert(data, ActionStatus)
+    except msgspec.ValidationError as e:
+        raise BadGateway(f"no action status: {e}") from None
+
+
+def _replace_href(status: ActionStatus, href: str) -> ActionStatus:
+    return msgspec.structs.replace(status, href=href)
+
+
+class SseSubscription:
+    """One SSE stream read by a thread; registered (the server sent its headers) once the constructor
+    returns. Each `data:` event's JSON goes to the callback, on that thread; a broken stream is reported
+    to the callback as a `Problem` (502), once."""
+
+    def __init__(self, http: httpx.Client, url: str, callback: Callback, timeout: float = 10.0):
+        self.url, self._callback = url, callback
+        self._opened = threading.Event()
+        self._stopping = False
+        self._response: httpx.Response | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._read, args=(http,), name="sse", daemon=True)
+        self._thread.start()
+        if not self._opened.wait(timeout):
+            self.stop()
+            raise TimedOut(f"{url}: the event stream did not open within {timeout:g} s")
+        if self._error is not None:
+            raise self._error
+
+    def _read(self, http: httpx.Client) -> None:
+        try:
+            with http.stream("GET", self.url, headers={"Accept": "text/event-stream"},
+                             timeout=httpx.Timeout(10.0, read=None)) as r:
+                if r.status_code != 200:
+                    r.read()
+                    self._error = problem_of(r)
+                    return
+                self._response = r
+                self._opened.set()
+                data: list[str] = []
+                for line in r.iter_lines():
+                    if line.startswith("data:"):
+                        data.append(line[5:].removeprefix(" "))
+                    elif not line and data:
+                        if not self._stopping:
+                            self._callback(json.loads("\n".join(data)))
+                        data = []
+        except Exception as e:
+            if not self._stopping:
+                if not self._opened.is_set():
+                    self._error = e
+                else:
+                    self._callback(BadGateway(f"the event stream {self.url} broke: {e}"))
+        finally:
+            self._opened.set()
+
+    def stop(self) -> None:
+        """Shut the socket down so that the reading thread wakes up, and wait for it."""
+        self._stopping = True
+        stream = self._response.extensions.get("network_stream") if self._response is not None else None
+        sock = stream.get_extra_info("socket") if stream is not None else None
+        if sock is not None:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout=5)

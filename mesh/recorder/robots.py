@@ -1,0 +1,381 @@
+"""Robot Things in a Rerun recording: each drawn from its URDF, animated, with its workspace (SPEC §6).
+
+A robot Thing (`mesh.messages.scene.TwinDescription`) links `twin.json` (`relations.TWIN`: its base pose
+in the scene frame, its frame and calibration) and its URDF (`rel: "describedby"`); once its workspace is
+generated, also the sampled points (`relations.POINTS`, CSV `x,y,z,collision,<joints>`) and the
+hull (`relations.WORKSPACE`, STL), both in mm in the robot's base frame. The recorder's fetcher thread
+fetches and parses them (`RobotFiles`, `Workspace.from_files`); `RobotDrawer`, owned by the writer
+thread, draws them into the RecordingStream.
+
+Entities of robot Thing `r` (its links are the frames `r/<link>`, as for the world's robots):
+- `robots/<r>/model/...`: the URDF's geometry and zero-pose joints, `robots/<r>/model/base` its base
+  in the scene frame `tf#/world` (static; drawn again when twin.json or the URDF change), and
+  `robots/<r>/model/joints/<j>` each joint's transform over time;
+- `robots/<r>/joints/<j>`: each joint's value as a time series in rad or m (the Thing reports deg
+  and mm, as its TD's `unit`s say), batched like the world's poses; `getJointposition` is not also
+  logged as a plain property;
+- `robots/<r>/workspace/points/free` (green) and `.../points/colliding` (red): the sampled
+  end-effector positions; `robots/<r>/workspace/hull`: the hull, semi-transparent; all three in the
+  robot's base frame (m). Static, one log call each: a regenerated workspace replaces the previous
+  one for the whole recording (a TD that no longer links one leaves the last one drawn), and a line
+  in `robots/<r>/log` says when each was drawn. One subtree per robot, so it is one eye toggle.
+A robot Thing whose name is also a robot of the `world` Thing's scene is drawn once: the world draws
+and animates it (its poses are the simulation's state), the Thing adds its joint series and its
+workspace, placed in the world robot's base frame. Whichever arrives first, the Thing's own model is
+cleared when the world takes the robot over, and drawn again if the world's scene drops it.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import msgspec
+import numpy as np
+import rerun as rr
+
+from mesh.messages import relations
+from mesh.messages.scene import MODEL_REL, TWIN_FILE, TWIN_REL, Pose, TwinDescription
+from mesh.recorder.mapping import Entry
+from mesh.recorder.scene import BATCH_AGE, BATCH_ROWS, WORLD, Robot, SampleBatch, SceneDrawer, thing_robot_path
+from mesh.wot import units
+from mesh.wot.td import ThingDescription
+
+JOINTS_PROPERTY = "getJointposition"
+POINTS_REL = relations.POINTS
+WORKSPACE_REL = relations.WORKSPACE
+FREE_COLOUR = (40, 180, 70)
+COLLIDING_COLOUR = (220, 50, 40)
+HULL_COLOUR = (70, 140, 230, 60)  # RGBA: the alpha makes it see-through
+PATH_COLOUR = (250, 170, 20)
+PATH_RADIUS = 0.004  # m
+POINT_RADIUS = rr.Radius.ui_points(1.5)  # on screen, whatever the zoom
+_UNITS = {"deg": (math.pi / 180, "rad"), "degree": (math.pi / 180, "rad"), "degrees": (math.pi / 180, "rad"),
+          "rad": (1.0, "rad"), "radian": (1.0, "rad"), "radians": (1.0, "rad"),
+          "mm": (1e-3, "m"), "millimetre": (1e-3, "m"), "millimeter": (1e-3, "m"), "m": (1.0, "m")}
+_UNITS.update({unit.lower(): _UNITS[units.symbol(unit)] for unit in (units.DEGREE, units.MILLIMETRE, units.METRE)})
+_REVOLUTE, _PRISMATIC = _UNITS["deg"], _UNITS["mm"]  # SPEC §4's units when a TD does not say
+
+
+# --- what a robot Thing's TD and files say ---------------------------------------------------------
+def urdf_dir(twin: TwinDescription) -> Path | None:
+    """The folder of a twin's URDF on this machine, where its meshes are looked for: the one its Thing
+    names (`urdf_dir` of twin.json), else its `urdf` as a path or a pybullet_data path; None if not here."""
+    import pybullet_data
+
+    if twin.urdf_dir and Path(twin.urdf_dir).is_dir():
+        return Path(twin.urdf_dir)
+    for path in (Path(twin.urdf), Path(pybullet_data.getDataPath()) / twin.urdf):
+        if path.is_file():
+            return path.resolve().parent
+    return None
+
+
+def link_file(td: ThingDescription, rel: str) -> str | None:
+    """The file name a TD link points at (`files/points.csv`, `zenoh:.../files/points.csv`, a URL)."""
+    for link in td.links:
+        if link.rel == rel:
+            name = link.href.split("#")[0].split("?")[0].rstrip("/").rsplit("/", 1)[-1]
+            return name or None
+    return None
+
+
+def is_robot(td: ThingDescription) -> bool:
+    return link_file(td, TWIN_REL) is not None
+
+
+def joint_units(td: ThingDescription) -> dict[str, tuple[float, str]]:
+    """Joint -> (factor to rad or m, that unit), from the `unit`s of the TD's `getJointposition`."""
+    prop = td.properties.get(JOINTS_PROPERTY)
+    fields = (prop.properties or {}) if prop is not None else {}
+    return {j: _UNITS[s.unit.lower()] for j, s in fields.items() if s.unit and s.unit.lower() in _UNITS}
+
+
+@dataclass(frozen=True)
+class RobotFiles:
+    """What the recorder fetched from a robot Thing to draw it: its twin.json and URDF text."""
+
+    thing: str
+    twin: TwinDescription
+    urdf: str
+
+
+@dataclass
+class Workspace:
+    """A robot's sampled points and hull, in m in its base frame (twin frame)."""
+
+    thing: str
+    points: np.ndarray  # (N, 3) float32
+    colliding: np.ndarray  # (N,) bool
+    vertices: np.ndarray  # (V, 3) float32
+    triangles: np.ndarray  # (F, 3) uint32
+    normals: np.ndarray  # (V, 3) float32
+
+    @classmethod
+    def from_files(cls, thing: str, csv: bytes, stl: bytes, twin: TwinDescription) -> "Workspace":
+        xyz, colliding = read_points(csv)
+        vertices, triangles, normals = read_hull(stl)
+        if twin.frame == "real":  # the TD's files are in the real robot's frame: back to the twin's
+            xyz, vertices = to_twin_frame(xyz, twin), to_twin_frame(vertices, twin)
+        return cls(thing, (xyz / 1000).astype(np.float32), colliding, (vertices / 1000).astype(np.float32),
+                   triangles.astype(np.uint32), normals.astype(np.float32))
+
+
+def _tip(call: Any) -> np.ndarray | None:
+    """`output.path.tip` of an action call as (N, 3) mm, or None when the call carries none."""
+    try:
+        tip = np.asarray(call["output"]["path"]["tip"], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        return None
+    return tip if tip.ndim == 2 and tip.shape[1] == 3 and len(tip) >= 2 and np.isfinite(tip).all() else None
+
+
+def read_robot(thing: str, td: ThingDescription, get: Callable[[str], bytes]) -> RobotFiles:
+    """A robot Thing's twin.json and URDF, through `get(file name)` (the recorder's fetcher)."""
+    twin = msgspec.json.decode(get(link_file(td, TWIN_REL) or TWIN_FILE), type=TwinDescription)
+    return RobotFiles(thing, twin, get(link_file(td, MODEL_REL) or twin.urdf_file).decode())
+
+
+class WorkspaceFiles:
+    """Reads robots' workspaces through `get(file name)`; the same files twice are read once."""
+
+    def __init__(self):
+        self._digests: dict[str, str] = {}  # robot -> digest of what was read last
+
+    def read(self, thing: str, td: ThingDescription, twin: TwinDescription,
+             get: Callable[[str], bytes]) -> Workspace | None:
+        """The workspace the TD links; None when it links none or the files have not changed."""
+        points, hull = link_file(td, POINTS_REL), link_file(td, WORKSPACE_REL)
+        if points is None or hull is None:
+            return None
+        csv, stl = get(points), get(hull)
+        h = hashlib.sha256()
+        for part in (csv, stl, msgspec.json.encode([twin.frame, twin.calibration])):
+            h.update(len(part).to_bytes(8, "little") + part)
+        if self._digests.get(thing) == h.hexdigest():
+            return None
+        workspace = Workspace.from_files(thing, csv, stl, twin)
+        self._digests[thing] = h.hexdigest()
+        return workspace
+
+
+def read_points(csv: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """x, y, z (mm) and collision of each row of a points CSV (header `x,y,z,collision,<joints>`)."""
+    header, _, body = csv.decode().partition("\n")
+    names = [h.strip().lower() for h in header.split(",")]
+    missing = [c for c in ("x", "y", "z", "collision") if c not in names]
+    if missing:
+        raise ValueError(f"the points CSV has no {', '.join(missing)} column (header {header.strip()!r})")
+    if not body.strip():
+        return np.zeros((0, 3)), np.zeros(0, dtype=bool)
+    columns = [names.index(c) for c in ("x", "y", "z", "collision")]
+    data = np.loadtxt(io.StringIO(body), delimiter=",", usecols=columns, ndmin=2)
+    return data[:, :3], data[:, 3] != 0
+
+
+def read_hull(stl: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices (mm), triangles and vertex normals of an STL (binary or ASCII), shared vertices merged."""
+    import trimesh  # only when a workspace is drawn
+
+    mesh = trimesh.load_mesh(io.BytesIO(stl), file_type="stl")
+    if len(mesh.faces) == 0:
+        raise ValueError("the workspace STL has no triangles")
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces), np.asarray(mesh.vertex_normals)
+
+
+def to_twin_frame(points: np.ndarray, twin: TwinDescription) -> np.ndarray:
+    """Real-frame points (mm) back in the twin's base frame, by a least-squares fit of the twin's
+    calibration pairs (affine with 4 pairs off one plane, else per axis); unchanged without pairs."""
+    pairs = np.asarray(twin.calibration or [], dtype=float)
+    if len(pairs) < 2 or len(points) == 0:
+        return points
+    real, tw = pairs[:, 3:6], pairs[:, :3]
+    design = np.column_stack([real, np.ones(len(real))])
+    if len(pairs) >= 4 and np.linalg.matrix_rank(design) == 4:
+        m, *_ = np.linalg.lstsq(design, tw, rcond=None)  # (4, 3): twin = [real 1] @ m
+        return points @ m[:3] + m[3]
+    out = np.array(points, dtype=float)
+    for i in range(3):
+        if np.ptp(real[:, i]) > 0:
+            k, b = np.polyfit(real[:, i], tw[:, i], 1)
+            out[:, i] = k * out[:, i] + b
+    return out
+
+
+# --- drawing -------------------------------------------------------------------------------------
+@dataclass
+class _RobotThing:
+    files: RobotFiles | None = None
+    units: dict[str, tuple[float, str]] = field(default_factory=dict)
+    robot: Robot | None = None  # its own drawing; None when the world draws it (or not drawn yet)
+    host: str | None = None  # the world's robot of the same name, which draws it
+    workspace: Workspace | None = None
+    frame: str | None = None  # the base frame the workspace was logged in
+
+
+class RobotDrawer:
+    """Draws the robot Things of the lab and their workspaces into `rec` (the writer thread only).
+
+    `scene` is the world's drawer: a robot of its scene is not drawn a second time."""
+
+    def __init__(self, rec, scene: SceneDrawer, batch_rows: int = BATCH_ROWS, batch_age: float = BATCH_AGE):
+        self.rec = rec
+        self.scene = scene
+        self.batch_rows, self.batch_age = batch_rows, batch_age
+        self.things: dict[str, _RobotThing] = {}
+        self._joints: dict[tuple[str, str], SampleBatch] = {}
+        self._styled: dict[str, str] = {}  # joint series -> the unit its name was logged with
+        self._path_frames: dict[str, str] = {}  # robot -> the frame its path entity was placed in
+        self._rows = 0
+        self._oldest: float | None = None
+        self._world_logged = False
+
+    def knows(self, thing: str) -> bool:
+        return thing in self.things
+
+    def bases(self) -> dict[str, Pose]:
+        """The drawn robot Things' base poses (the blueprint's camera looks at them)."""
+        return {name: t.files.twin.base for name, t in self.things.items() if t.files is not None}
+
+    def set_td(self, thing: str, td: ThingDescription) -> None:
+        """A robot Thing's TD (again): its joint units."""
+        self.things.setdefault(thing, _RobotThing()).units = joint_units(td)
+
+    # --- the model (static) --------------------------------------------------------------------
+    def draw_robot(self, files: RobotFiles) -> list[str]:
+        """Draw a robot Thing from its URDF at its base (unless the world draws it). Returns problems."""
+        t = self.things.setdefault(files.thing, _RobotThing())
+        if t.files == files:
+            return []
+        t.files = files
+        return self._place(files.thing, t, redraw=True)
+
+    def world_changed(self) -> list[str]:
+        """The world's scene was drawn: hand robots over to it, or take back those it dropped."""
+        return [p for name, t in self.things.items() for p in self._place(name, t)]
+
+    def _place(self, name: str, t: _RobotThing, redraw: bool = False) -> list[str]:
+        host = name if name in self.scene.robots else None
+        problems: list[str] = []
+        if host is not None and t.robot is not None:  # the world took it over
+            self.rec.log(thing_robot_path(name, "model"), rr.Clear(recursive=True), static=True)
+            t.robot = None
+        elif host is None and t.files is not None and (t.robot is None or redraw):
+            try:
+                robot = Robot.load(name, t.files.urdf, thing_robot_path(name, "model"), urdf_dir(t.files.twin))
+            except Exception as e:  # a bad URDF: the joint series and the log still record
+                problems.append(f"cannot draw robot {name} from {t.files.twin.urdf_file}: {e}")
+            else:
+                problems += [f"robot {name}: {m}" for m in robot.missing]
+                if not self._world_logged:
+                    self.rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+                    self._world_logged = True
+                robot.draw(self.rec, t.files.twin.base)
+                t.robot = robot
+        t.host = host
+        if t.workspace is not None and self._frame(t) != t.frame:  # its base frame is another robot's now
+            self._log_frames(name, t)
+        return problems
+
+    def _urdf(self, t: _RobotThing) -> Robot | None:
+        return self.scene.robots.get(t.host) if t.host is not None else t.robot
+
+    def _frame(self, t: _RobotThing) -> str | None:
+        robot = self._urdf(t)
+        return robot.base_frame if robot is not None else None
+
+    # --- the workspace (static) ----------------------------------------------------------------
+    def draw_workspace(self, ws: Workspace) -> list[Entry]:
+        """Points (free and colliding apart) and hull in the robot's base frame; returns a log line."""
+        name = ws.thing
+        t = self.things.setdefault(name, _RobotThing())
+        t.workspace = ws
+        free, colliding = ws.points[~ws.colliding], ws.points[ws.colliding]
+        for part, points, colour in (("free", free, FREE_COLOUR), ("colliding", colliding, COLLIDING_COLOUR)):
+            self.rec.log(thing_robot_path(name, "workspace", "points", part),
+                         rr.Points3D(points, colors=[colour], radii=[POINT_RADIUS]),  # type: ignore[arg-type]
+                         static=True)
+        self.rec.log(thing_robot_path(name, "workspace", "hull"),
+                     rr.Mesh3D(vertex_positions=ws.vertices, triangle_indices=ws.triangles,
+                               vertex_normals=ws.normals, albedo_factor=HULL_COLOUR), static=True)
+        self._log_frames(name, t)
+        text = (f"workspace: {len(ws.points)} points, {len(colliding)} colliding; "
+                f"hull of {len(ws.vertices)} vertices")
+        level = "INFO" if t.frame is not None else "WARN"
+        if t.frame is None:
+            text += " (not placed: the robot is not drawn)"
+        return [Entry(thing_robot_path(name, "log"), rr.TextLog(text, level=level))]
+
+    def _log_frames(self, name: str, t: _RobotThing) -> None:
+        t.frame = self._frame(t)
+        if t.frame is None:
+            return
+        for parts in (("points", "free"), ("points", "colliding"), ("hull",)):
+            self.rec.log(thing_robot_path(name, "workspace", *parts), rr.CoordinateFrame(t.frame), static=True)
+
+    # --- a move's path (over time) -------------------------------------------------------------
+    def draw_path(self, thing: str, call: Any) -> list[Entry]:
+        """The end effector's sweep of a robot move (its answer's `path.tip`, mm in the TD's frame) as a
+        line in the robot's base frame, shown from that move on; nothing for other calls."""
+        tip = _tip(call)
+        t = self.things.get(thing)
+        if tip is None or t is None:
+            return []
+        if t.files is not None and t.files.twin.frame == "real":
+            tip = to_twin_frame(tip, t.files.twin)
+        path = thing_robot_path(thing, "path")
+        frame = self._frame(t)
+        if frame is not None and self._path_frames.get(thing) != frame:
+            self.rec.log(path, rr.CoordinateFrame(frame), static=True)
+            self._path_frames[thing] = frame
+        return [Entry(path, rr.LineStrips3D([(tip / 1000).astype(np.float32)], colors=[PATH_COLOUR],
+                                            radii=[PATH_RADIUS]))]
+
+    # --- joints (over time) --------------------------------------------------------------------
+    def add_joints(self, thing: str, values: Any, wall: float, seq: int, sim: float | None) -> None:
+        """Queue one `getJointposition` value (joint -> deg or mm), converted to rad or m."""
+        if not isinstance(values, dict):
+            return
+        t = self.things.setdefault(thing, _RobotThing())
+        for joint, v in values.items():
+            if not isinstance(v, (int, float)) or isinstance(v, bool):
+                continue
+            factor, _ = self._unit(t, joint)
+            batch = self._joints.get((thing, joint))
+            if batch is None:
+                batch = self._joints[(thing, joint)] = SampleBatch()
+            batch.add(wall, seq, sim, float(v) * factor)
+        self._rows += 1
+        if self._oldest is None:
+            self._oldest = time.monotonic()
+
+    def _unit(self, t: _RobotThing, joint: str) -> tuple[float, str]:
+        if joint in t.units:
+            return t.units[joint]
+        robot = self._urdf(t)
+        return _PRISMATIC if robot is not None and robot.unit(joint) == "m" else _REVOLUTE
+
+    def flush_due(self) -> bool:
+        return self._oldest is not None and (
+            self._rows >= self.batch_rows or time.monotonic() - self._oldest >= self.batch_age)
+
+    def flush(self) -> None:
+        """One `send_columns` per joint series and per joint transform (rows that fail are dropped)."""
+        joints = self._joints
+        self._joints, self._rows, self._oldest = {}, 0, None
+        made: dict[tuple[int, ...], list[rr.TimeColumn]] = {}
+        for (thing, joint), batch in joints.items():
+            indexes = batch.indexes(made)
+            t = self.things[thing]
+            path = thing_robot_path(thing, "joints", joint)
+            unit = self._unit(t, joint)[1]
+            if self._styled.get(path) != unit:
+                self.rec.log(path, rr.SeriesLines(names=[f"{joint} ({unit})"]), static=True)
+                self._styled[path] = unit
+            self.rec.send_columns(path, indexes, rr.Scalars.columns(scalars=np.array(batch.values)))
+            if t.robot is not None:
+                t.robot.send_joint(self.rec, joint, indexes, batch.values)

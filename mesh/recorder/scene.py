@@ -1,0 +1,373 @@
+"""How a simulated world looks in a Rerun recording: its scene drawn, its poses animated (SPEC §6).
+
+The `world` Thing (`mesh.messages.scene`) says what the lab looks like (`scene.json` and the robots'
+URDFs) and, in its `poses` property, where everything is at each instant of simulated time.
+`SceneDrawer` turns both into Rerun data. It is owned by the recorder's writer thread and writes to
+its RecordingStream. Poses may come fast (a world at `--speed max`), and one `log` call per value
+costs about 2 ms a sample, so joint values and body poses are kept in per-entity batches and
+written with `send_columns` a few times a second (about 0.1 ms a sample). `Robot` (a URDF drawn
+under an entity, placed by its base, its joints animated) is shared with `mesh.recorder.robots`, which
+draws the robot Things of the lab; `lab_blueprint` lays out both, so a recording opens on the lab in
+3D beside its joint plots and its log.
+
+Entities (frames: `tf#/world` is the scene frame; robot `r`'s links are the frames `r/<link>`):
+- `world`: Z-up view coordinates;
+- `world/robots/<r>/...`: the URDF's visual geometry, `world/robots/<r>/tf_static` its joints at
+  zero (both static, from rerun's URDF support, collision geometry left out);
+- `world/robots/<r>/base`: the robot's base pose in the scene (static, from `scene.json`), and
+  `world/robots/<r>/base_pose` the same over time when `poses.bodies` names the robot (a Dobot
+  travelling on its track);
+- `world/robots/<r>/joints/<j>`: each moving joint's transform over time, computed from the URDF;
+- `world/joints/<r>/<j>`: each joint's value as a time series (rad or m), one entity per joint;
+- `world/bodies/<b>`: each body as a box, cylinder or sphere with its colour (static) and its pose
+  (static, or over time for moving bodies such as cubes);
+- `world/states/<device>/<key>`: each device's small state by the property rules of
+  `mesh.recorder.mapping`, logged when it changes;
+- `robots/<r>/...`: robot Things (see `mesh.recorder.robots`).
+Poses are stamped on three timelines: `time` (wall clock), `seq` (the recorder's message number)
+and `sim_time` (the world's simulated seconds).
+"""
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+import rerun as rr
+from rerun.urdf import UrdfJoint, UrdfTree
+
+from mesh.messages.scene import Body, Pose, Poses, RobotModel, SceneDescription
+from mesh.recorder import mapping
+from mesh.recorder.mapping import Entry, entity_path
+from mesh.urdf_resources import with_absolute_meshes
+
+WORLD = "world"
+ROBOTS = "robots"  # robot Things (mesh.recorder.robots)
+SCENE_FRAME = "tf#/world"  # the implicit frame of the `world` entity
+BATCH_ROWS = 200  # samples held before they are written...
+BATCH_AGE = 0.25  # ...or seconds since the oldest one; a killed recorder loses about this much more
+_FILLED = ("Boxes3D", "Cylinders3D", "Ellipsoids3D")  # URDF primitives, drawn solid not wireframe
+_MISSING = object()
+
+
+class SceneFiles(msgspec.Struct):
+    """What the recorder fetched from the world Thing: its scene and the URDF text of each robot file."""
+
+    scene: SceneDescription
+    urdfs: dict[str, str] = {}
+
+
+# --- entity paths --------------------------------------------------------------------------------
+def robot_path(robot: str) -> str:
+    return entity_path(WORLD, "robots", robot)
+
+
+def joint_value_path(robot: str, joint: str) -> str:
+    return entity_path(WORLD, "joints", robot, joint)
+
+
+def body_path(body: str) -> str:
+    return entity_path(WORLD, "bodies", body)
+
+
+def state_path(device: str, key: str) -> str:
+    return entity_path(WORLD, "states", device, key)
+
+
+def thing_robot_path(robot: str, *parts: str) -> str:
+    """`robots/<r>/...`: a robot Thing's model, joint series and workspace (mesh.recorder.robots)."""
+    return entity_path(ROBOTS, robot, *parts)
+
+
+# --- robots --------------------------------------------------------------------------------------
+@dataclass
+class Robot:
+    """A robot as drawn: its URDF tree under the entity `root` (frames prefixed `<name>/`), its moving joints."""
+
+    name: str
+    root: str  # entity path (escaped), e.g. `world/robots/uarm`
+    tree: UrdfTree
+    joints: dict[str, UrdfJoint]
+    base_frame: str
+    missing: list[str]  # mesh files that could not be found: those links are drawn as frames only
+
+    @classmethod
+    def load(cls, name: str, urdf: str, root: str, urdf_dir: Path | None) -> "Robot":
+        """`urdf_dir`: where the URDF lives on this machine (as its Thing says), so that its meshes
+        (`package://`, relative) are found; the text itself came over the mesh."""
+        urdf, missing = with_absolute_meshes(urdf, urdf_dir)
+        with tempfile.TemporaryDirectory(prefix="twinmesh-urdf-") as tmp:
+            path = Path(tmp) / f"{name}.urdf"
+            path.write_text(urdf)
+            tree = UrdfTree.from_file_path(path, None, frame_prefix=f"{name}/",
+                                           static_transform_entity_path=f"{root}/tf_static")
+        joints = {j.name: j for j in tree.joints() if j.joint_type != "fixed"}
+        return cls(name, root, tree, joints, f"{name}/{tree.root_link().name}", missing)
+
+    def draw(self, rec, base: Pose) -> None:
+        """Its geometry and zero-pose joints (static), primitives solid, the base placed in the scene frame."""
+        chunks, filled = self.static_chunks()
+        rec.send_chunks(chunks)
+        for path, archetype in filled:
+            rec.log(path, getattr(rr, archetype).from_fields(fill_mode="solid"), static=True)
+        rec.log(f"{self.root}/base", _placement(base, self.base_frame), static=True)
+
+    def static_chunks(self) -> tuple[list, list[tuple[str, str]]]:
+        """The URDF's visual geometry and zero-pose joint transforms moved under `root`, and the
+        (path, archetype) of the primitives among them (to be drawn solid)."""
+        root, target = "/" + rr.escape_entity_path_part(self.tree.name), "/" + self.root
+        chunks, filled = [], []
+        for chunk in self.tree.stream():
+            path = chunk.entity_path
+            if path == root or path.startswith(root + "/"):
+                if path.startswith(root + "/collision_geometries"):
+                    continue
+                path = target + path[len(root):]
+                chunk = chunk.with_entity_path(path)
+            archetypes = {f.name.split(":")[0] for f in chunk.to_record_batch().schema}
+            filled += [(path, a) for a in _FILLED if a in archetypes]
+            chunks.append(chunk)
+        return chunks, filled
+
+    def joint_path(self, joint: str) -> str:
+        return f"{self.root}/joints/{rr.escape_entity_path_part(joint)}"
+
+    def send_joint(self, rec, joint: str, indexes: list, values: list[float]) -> None:
+        """A joint's transforms over time (values in rad or m), if the URDF has it."""
+        urdf_joint = self.joints.get(joint)
+        if urdf_joint is not None:
+            rec.send_columns(self.joint_path(joint), indexes, urdf_joint.compute_transform_columns(values, clamp=False))
+
+    def unit(self, joint: str) -> str:
+        j = self.joints.get(joint)
+        return "m" if j is not None and j.joint_type == "prismatic" else "rad"
+
+
+# --- batches of samples --------------------------------------------------------------------------
+@dataclass
+class SampleBatch:
+    """Rows of one entity waiting for one `send_columns`: the timelines and the values.
+
+    `sim` is None for a row without simulated time (a robot Thing before any world's poses); the
+    batch then goes out on `time` and `seq` only."""
+
+    wall: list[float] = field(default_factory=list)
+    seq: list[int] = field(default_factory=list)
+    sim: list[float | None] = field(default_factory=list)
+    values: list[Any] = field(default_factory=list)
+
+    def add(self, wall: float, seq: int, sim: float | None, value: Any) -> None:
+        self.wall.append(wall)
+        self.seq.append(seq)
+        self.sim.append(sim)
+        self.values.append(value)
+
+    def indexes(self, made: dict[tuple[int, ...], list[rr.TimeColumn]]) -> list[rr.TimeColumn]:
+        """The time columns; batches of the same samples (a robot's joints) share them through `made`."""
+        key = tuple(self.seq)
+        columns = made.get(key)
+        if columns is None:  # numpy arrays: rerun converts lists element by element
+            columns = made[key] = [rr.TimeColumn("time", timestamp=np.array(self.wall)),
+                                   rr.TimeColumn("seq", sequence=np.array(self.seq, dtype=np.int64))]
+            if None not in self.sim:
+                columns.append(rr.TimeColumn("sim_time", duration=np.array(self.sim)))
+        return columns
+
+
+class SceneDrawer:
+    """Draws the world's scene and animates it from its poses, into `rec` (one thread only)."""
+
+    def __init__(self, rec, batch_rows: int = BATCH_ROWS, batch_age: float = BATCH_AGE):
+        self.rec = rec
+        self.batch_rows, self.batch_age = batch_rows, batch_age
+        self.robots: dict[str, Robot] = {}
+        self.bodies: dict[str, Body] = {}
+        self.sim_time: float | None = None  # the latest simulated time seen
+        self._scene: SceneFiles | None = None
+        self._static_bodies: set[str] = set()  # drawn static (the first scene): cleared static too
+        self._joints: dict[tuple[str, str], SampleBatch] = {}
+        self._poses: dict[str, SampleBatch] = {}  # body name or robot name (its base) -> poses
+        self._states: dict[tuple[str, str], Any] = {}
+        self._styled: dict[str, str] = {}  # joint series -> the unit its name was logged with
+        self._rows = 0
+        self._oldest: float | None = None  # monotonic time of the oldest unwritten row
+
+    # --- the scene (static) ----------------------------------------------------------------
+    def draw_scene(self, files: SceneFiles, wall: float, seq: int) -> list[str]:
+        """Draw robots and bodies; a scene equal to the last one drawn is skipped. Returns problems."""
+        if files == self._scene:
+            return []
+        first = self._scene is None  # the room as it starts: static, there for the whole recording
+        old_robots, old_bodies = set(self.robots), set(self.bodies)
+        self._scene, self.robots, self.bodies, problems = files, {}, {}, []
+        self.rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        for model in files.scene.robots:
+            try:
+                self._draw_robot(model, files.urdfs[model.urdf])
+            except Exception as e:  # one bad URDF must not hide the rest of the scene
+                problems.append(f"cannot draw robot {model.name} from {model.urdf}: {e}")
+        for body in files.scene.bodies:
+            self._draw_body(body, wall, seq, static=first or body.name in self._static_bodies)
+        for gone in old_robots - set(self.robots):
+            self.rec.log(robot_path(gone), rr.Clear(recursive=True), static=True)
+        for gone in old_bodies - set(self.bodies):  # an obstacle removed: gone from then on, not before
+            self.rec.log(body_path(gone), rr.Clear(recursive=True), static=gone in self._static_bodies)
+            self._static_bodies.discard(gone)
+        return problems
+
+    @property
+    def scene(self) -> SceneDescription | None:
+        """The scene drawn last, if any."""
+        return self._scene.scene if self._scene is not None else None
+
+    def _draw_robot(self, model: RobotModel, urdf: str) -> None:
+        robot = Robot.load(model.name, urdf, robot_path(model.name),
+                           Path(model.urdf_dir) if model.urdf_dir else None)
+        robot.draw(self.rec, model.base)
+        self.robots[model.name] = robot
+
+    def _draw_body(self, body: Body, wall: float, seq: int, static: bool) -> None:
+        """A body of the first scene is static; one added later (an obstacle) exists from the time it was
+        drawn on, so that scrolling back shows the lab without it."""
+        path = body_path(body.name)
+        color = [round(min(max(c, 0.0), 1.0) * 255) for c in (*body.color, body.opacity)]
+        shape: rr.Boxes3D | rr.Cylinders3D | rr.Ellipsoids3D
+        if body.shape == "box":
+            shape = rr.Boxes3D(half_sizes=[[s / 2 for s in body.size]], colors=[color], fill_mode="solid")
+        elif body.shape == "cylinder":
+            shape = rr.Cylinders3D(radii=[body.size[0]], lengths=[body.size[1]], colors=[color], fill_mode="solid")
+        else:
+            r = body.size[0]
+            shape = rr.Ellipsoids3D(half_sizes=[[r, r, r]], colors=[color], fill_mode="solid")
+        self.rec.log(path, shape, static=static)
+        if body.moving:  # a static pose would shadow the poses to come: log it as the first of them
+            self._batch_pose(body.name, body.pose, wall, seq)
+        else:
+            placement = rr.Transform3D(translation=body.pose.p, quaternion=rr.Quaternion(xyzw=body.pose.q))
+            self.rec.log(path, placement, static=static)
+        self.bodies[body.name] = body
+        if static:
+            self._static_bodies.add(body.name)
+
+    # --- poses (over time) -----------------------------------------------------------------
+    def add_poses(self, poses: Poses, wall: float, seq: int) -> list[Entry]:
+        """Queue one sample's joints and body poses; returns the logs for the states that changed."""
+        self.sim_time = sim = poses.time
+        for robot, joints in poses.joints.items():
+            for joint, value in joints.items():
+                batch = self._joints.get((robot, joint))
+                if batch is None:
+                    batch = self._joints[(robot, joint)] = SampleBatch()
+                batch.add(wall, seq, sim, float(value))
+        for name, pose in poses.bodies.items():
+            self._batch_pose(name, pose, wall, seq)
+        out: list[Entry] = []
+        for device, state in poses.states.items():
+            for key, value in state.items():
+                if self._states.get((device, key), _MISSING) != value:
+                    self._states[(device, key)] = value
+                    out += mapping.value_entries(state_path(device, key), key, value, None)
+        self._rows += 1
+        if self._oldest is None:
+            self._oldest = time.monotonic()
+        return out
+
+    def _batch_pose(self, name: str, pose: Pose, wall: float, seq: int) -> None:
+        batch = self._poses.get(name)
+        if batch is None:
+            batch = self._poses[name] = SampleBatch()
+        batch.add(wall, seq, self.sim_time or 0.0, pose)
+        if self._oldest is None:
+            self._oldest = time.monotonic()
+
+    def flush_due(self) -> bool:
+        return self._oldest is not None and (
+            self._rows >= self.batch_rows or time.monotonic() - self._oldest >= self.batch_age)
+
+    def flush(self) -> None:
+        """Write every queued row: one `send_columns` per entity (rows that fail to write are dropped)."""
+        joints, poses = self._joints, self._poses
+        self._joints, self._poses, self._rows, self._oldest = {}, {}, 0, None
+        made: dict[tuple[int, ...], list[rr.TimeColumn]] = {}
+        for (robot, joint), batch in joints.items():
+            self._send_joint(robot, joint, batch, batch.indexes(made))
+        for name, batch in poses.items():
+            self._send_poses(name, batch, batch.indexes(made))
+
+    def _send_joint(self, robot_name: str, joint: str, batch: SampleBatch, indexes: list[rr.TimeColumn]) -> None:
+        robot = self.robots.get(robot_name)
+        path = joint_value_path(robot_name, joint)
+        unit = robot.unit(joint) if robot is not None else "rad"
+        if self._styled.get(path) != unit:  # again once the URDF tells a prismatic joint
+            self.rec.log(path, rr.SeriesLines(names=[f"{joint} ({unit})"]), static=True)
+            self._styled[path] = unit
+        self.rec.send_columns(path, indexes, rr.Scalars.columns(scalars=np.array(batch.values)))
+        if robot is not None:
+            robot.send_joint(self.rec, joint, indexes, batch.values)
+
+    def _send_poses(self, name: str, batch: SampleBatch, indexes: list[rr.TimeColumn]) -> None:
+        translations = np.array([p.p for p in batch.values])
+        quaternions = np.array([p.q for p in batch.values])
+        robot = self.robots.get(name)
+        if robot is not None:  # a robot whose base moves: scene frame -> its root link
+            n = len(batch.values)
+            columns = rr.Transform3D.columns(translation=translations, quaternion=quaternions,
+                                             parent_frame=[SCENE_FRAME] * n, child_frame=[robot.base_frame] * n)
+            self.rec.send_columns(f"{robot_path(name)}/base_pose", indexes, columns)
+        else:
+            columns = rr.Transform3D.columns(translation=translations, quaternion=quaternions)
+            self.rec.send_columns(body_path(name), indexes, columns)
+
+
+def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing_robots: dict[str, Pose]):
+    """How a recording of a lab opens: the lab in 3D, joint plots per robot, states, the log.
+
+    `thing_robots` are the robot Things (name -> base pose). Their workspaces are hidden in the lab
+    view (one eye toggle per robot in the blueprint panel: `robots/<r>/workspace`) and shown in a
+    second 3D tab, `workspaces`. The time panel opens on `sim_time` when a world runs, else `time`.
+    """
+    import rerun.blueprint as rrb
+
+    bases = [r.base.p for r in scene.robots] if scene is not None else []
+    bases += [p.p for p in thing_robots.values()]
+    contents = [f"+ /{WORLD}/robots/**", f"+ /{WORLD}/bodies/**", f"+ /{ROBOTS}/**"]
+    hidden = {"/" + thing_robot_path(r, "workspace"): rrb.EntityBehavior(visible=False) for r in thing_robots}
+    eye = _eye(bases, 2.5 if thing_robots else 1.0)  # a UR10's workspace is 2.6 m across
+    lab: rrb.Spatial3DView | rrb.Tabs = rrb.Spatial3DView(
+        origin=f"/{WORLD}", name=scene.name if scene is not None else "lab", contents=contents,
+        overrides=hidden, eye_controls=eye)  # type: ignore[arg-type]  # rerun's Mapping is invariant in its key
+    if thing_robots:
+        lab = rrb.Tabs(lab, rrb.Spatial3DView(origin=f"/{WORLD}", name="workspaces", contents=contents,
+                                              eye_controls=eye))
+    joints = [rrb.TimeSeriesView(origin="/" + entity_path(WORLD, "joints", r), name=f"{r} joints")
+              for r in world_robots]
+    joints += [rrb.TimeSeriesView(origin="/" + thing_robot_path(r, "joints"),
+                                  name=f"{r} joints" + (" (Thing)" if r in world_robots else ""))
+               for r in thing_robots]
+    values = rrb.Tabs(rrb.TimeSeriesView(origin=f"/{WORLD}/states", name="device states"),
+                      rrb.TimeSeriesView(origin="/things", name="properties"))
+    log = rrb.TextLogView(origin="/", name="log")
+    side = rrb.Vertical(rrb.Tabs(*joints), values, log) if joints else rrb.Vertical(values, log)
+    return rrb.Blueprint(rrb.Horizontal(lab, side, column_shares=[3, 2]),
+                         rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
+                         rrb.TimePanel(timeline="sim_time" if scene is not None else "time", state="collapsed"))
+
+
+def _eye(bases: list, least: float = 1.0):
+    """A camera in front of and above the robots, far enough to see them all (`least` from one)."""
+    import rerun.blueprint as rrb
+
+    at = np.array(bases or [(0.0, 0.0, 0.0)])
+    target = at.mean(axis=0)
+    reach = max(least, 1.6 * float(np.ptp(at, axis=0).max()))
+    return rrb.EyeControls3D(position=target + reach * np.array([-0.35, -1.0, 0.6]), look_target=target,
+                             eye_up=(0.0, 0.0, 1.0))
+
+
+def _placement(pose: Pose, child_frame: str) -> rr.Transform3D:
+    return rr.Transform3D(translation=pose.p, quaternion=rr.Quaternion(xyzw=pose.q), parent_frame=SCENE_FRAME,
+                          child_frame=child_frame)

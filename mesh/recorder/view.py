@@ -1,0 +1,47 @@
+"""The live 3D view: the recorder's stream served to a Rerun web viewer instead of written to a file.
+
+`twinmesh up` runs it as the `view` process (unless `--no-view`): the same Recorder that writes
+`.rrd` files (the room, the robots from their URDFs, cubes, belts, lights, pan-tilt heads, the UR10's
+workspace, obstacles, planned paths, plots of properties) logs into a RecordingStream served over
+Rerun's gRPC proxy, and rerun-sdk serves its own web viewer (its files come with the package: no
+internet) pointed at that stream. A browser that opens the URL later still gets what happened
+before, up to `MEMORY` of it (oldest first out).
+"""
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from urllib.parse import quote
+
+from mesh.fabric.settings import MeshSettings
+
+MEMORY = "256MiB"  # what the gRPC proxy keeps for browsers that connect later
+
+
+def view_url(address: tuple[str, int], grpc_port: int) -> str:
+    """What a browser opens: the web viewer at `address`, told where the live stream is."""
+    host, port = address
+    return f"http://{host}:{port}/?url={quote(grpc_url(host, grpc_port), safe='')}"
+
+
+def grpc_url(host: str, grpc_port: int) -> str:
+    return f"rerun+http://{host}:{grpc_port}/proxy"
+
+
+def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] = ("127.0.0.1", 9090),
+        grpc_port: int = 9876) -> None:
+    """Process entry: serve the lab to a web viewer at `address` until `stop` is set."""
+    import rerun as rr
+
+    from mesh.fabric.session import open_session
+    from mesh.recorder.logger import Recorder
+
+    rec = rr.RecordingStream("twinmesh")
+    rr.serve_grpc(grpc_port=grpc_port, recording=rec, server_memory_limit=MEMORY)
+    rr.serve_web_viewer(web_port=address[1], open_browser=False, connect_to=grpc_url(address[0], grpc_port))
+    rec.send_recording_name(f"twinmesh {settings.prefix} live {time.strftime('%Y-%m-%d %H:%M:%S')}")
+    with open_session(settings, service=True) as session, Recorder(session, settings, rec) as recorder:
+        alive = recorder.start()
+        print(f"3D view at {view_url(address, grpc_port)} ({len(alive)} things alive)", file=sys.stderr, flush=True)
+        stop.wait()

@@ -1,0 +1,1 @@
+"""tdgen's command-line commands: `tdgen`, `check`, `ik`."""

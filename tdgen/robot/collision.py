@@ -1,0 +1,248 @@
+"""Collision checking: one pybullet world with the surroundings and the robot, asked "does q collide?".
+
+What counts as a collision (penetration deeper than `CONTACT_TOLERANCE`):
+- the robot with itself, except pairs of links that are rigidly joined or joined by one joint
+  ("adjacent"; joints no configuration moves, such as a Panda's finger, count as rigid) and pairs
+  in contact both at the home pose (q = 0 clipped to the limits) and at mid-range: meshes that
+  overlap by design (a Panda's hand and link 6), not poses that happen to fold the arm;
+- the robot with a scene body, except the links rigidly fixed to the base: a robot bolted onto a
+  table touches it in every configuration, which says nothing about the configuration.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tdgen.robot.model import Robot
+from tdgen.robot.surroundings import Scene, build_into
+
+CONTACT_TOLERANCE = 1e-4  # m: contacts shallower than this are touching, not colliding
+
+
+class CollisionWorld:
+    """One pybullet DIRECT client with the scene and the robot: answers "does q collide?"."""
+
+    def __init__(self, robot: Robot, scene: Scene):
+        import pybullet as pb
+
+        self._pb = pb
+        self.robot = robot
+        self.client = pb.connect(pb.DIRECT)
+        try:
+            ids = build_into(scene, self.client)
+            self._scene_names = {i: b.name or f"body {k}" for k, (i, b) in enumerate(zip(ids, scene.bodies))}
+            self.body = robot.load_into(self.client, scene.robot.position, math.radians(scene.robot.yaw),
+                                        base_orientation=scene.robot.quaternion(),
+                                        flags=pb.URDF_USE_SELF_COLLISION)
+        except Exception:
+            pb.disconnect(self.client)
+            raise
+        names = {pb.getJointInfo(self.body, i, physicsClientId=self.client)[1].decode(): i
+                 for i in range(pb.getNumJoints(self.body, physicsClientId=self.client))}
+        drives = robot.drives()
+        self._indices = [names[n] for n in drives]
+        # every driven joint as multiplier * source + offset, vectorised (`Robot.joint_values`, without
+        # its per-call bookkeeping: planners check one state at a time)
+        self._kind = np.array([d.kind for d in drives.values()])
+        self._source = np.array([max(d.index, 0) for d in drives.values()])
+        self._mult = np.array([d.multiplier if d.kind != "const" else 0.0 for d in drives.values()])
+        self._offset = np.array([d.offset for d in drives.values()])
+        self._main_cols = np.where(self._kind == "main", self._source, 0)
+        self._passive_mask = self._kind == "passive"
+        self._passive_cols = np.where(self._passive_mask, self._source, 0)
+        group = self._rigid_groups()
+        self._fixed_to_base = {link for link, g in group.items() if g == group[-1]}
+        self._excluded = self._adjacent_pairs(group)
+        self._excluded |= self._touching_by_design()
+        self._excluded |= self._allowed_pairs()
+        for a, b in self._excluded:  # contacts `_colliding` ignores need not be computed (a Panda checks ~1/3 faster)
+            if a < b:
+                pb.setCollisionFilterPair(self.body, self.body, a, b, 0, physicsClientId=self.client)
+
+    def close(self) -> None:
+        self._pb.disconnect(self.client)
+
+    def _values(self, q: np.ndarray) -> np.ndarray:
+        """(N, n) main-joint values -> (N, m) values of every driven pybullet joint."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        source = q[:, self._main_cols]
+        if self._passive_mask.any() and self.robot.passive is not None:
+            passive = np.atleast_2d(self.robot.passive(q))
+            source = np.where(self._passive_mask, passive[:, self._passive_cols], source)
+        return source * self._mult + self._offset
+
+    def _set(self, values: np.ndarray) -> None:
+        self._pb.resetJointStatesMultiDof(self.body, self._indices, [[float(v)] for v in values],
+                                          physicsClientId=self.client)
+
+    def _rigid_groups(self) -> dict[int, int]:
+        """link index -> group: links joined by fixed (or never moved) joints share a group."""
+        pb, moving = self._pb, set(self._indices)
+        group = {-1: -1}
+        for i in range(pb.getNumJoints(self.body, physicsClientId=self.client)):  # parents come first
+            parent = pb.getJointInfo(self.body, i, physicsClientId=self.client)[16]
+            group[i] = i if i in moving else group[parent]
+        return group
+
+    def _adjacent_pairs(self, group: dict[int, int]) -> set[tuple[int, int]]:
+        """Link pairs in one rigid group or in two groups joined by one joint."""
+        pb = self._pb
+        joined = {(g, g) for g in group.values()}
+        for i in self._indices:
+            parent = pb.getJointInfo(self.body, i, physicsClientId=self.client)[16]
+            joined |= {(group[i], group[parent]), (group[parent], group[i])}
+        return {(a, b) for a in group for b in group if (group[a], group[b]) in joined}
+
+    def _touching_by_design(self) -> set[tuple[int, int]]:
+        """Self-contact pairs at both the home pose (q = 0 within the limits) and mid-range."""
+        lows, highs = self.robot.lows(), self.robot.highs()
+        pairs = []
+        for q in (np.clip(np.zeros(len(lows)), lows, highs), (lows + highs) / 2):
+            self._set(self._values(q[None])[0])
+            pairs.append({p for (a, b), other in self._contacts() if other == self.body for p in ((a, b), (b, a))})
+        return pairs[0] & pairs[1]
+
+    def _allowed_pairs(self) -> set[tuple[int, int]]:
+        """The robot's allowed collisions (`Robot.allowed_collisions`, by link name), both ways."""
+        count = self._pb.getNumJoints(self.body, physicsClientId=self.client)
+        index = {self._link_name(i): i for i in range(-1, count)}
+        return {p for a, b in self.robot.allowed_collisions if a in index and b in index
+                for p in ((index[a], index[b]), (index[b], index[a]))}
+
+    def _contacts(self) -> list[tuple[tuple[int, int], int]]:
+        """((robot link, other link), other body) for every penetrating contact of the robot."""
+        pb = self._pb
+        pb.performCollisionDetection(physicsClientId=self.client)
+        found = []
+        for c in pb.getContactPoints(bodyA=self.body, physicsClientId=self.client):
+            if c[8] < -CONTACT_TOLERANCE:
+                if c[1] == self.body:
+                    found.append(((c[3], c[4]), c[2]))
+                else:
+                    found.append(((c[4], c[3]), c[1]))
+        return found
+
+    def _colliding(self) -> bool:
+        for (link, other_link), other in self._contacts():
+            if other == self.body:
+                if (link, other_link) not in self._excluded:
+                    return True
+            elif link not in self._fixed_to_base:
+                return True
+        return False
+
+    def sweep_radii(self) -> np.ndarray:
+        """Per main joint, a bound on how far (m) any point of the robot moves per unit of that joint.
+
+        A revolute joint turns every link after it about an axis through its frame origin, so no
+        point moves further than |dq| times its distance from that origin; that distance is bounded
+        by the link-frame-to-link-frame lengths down the tree plus each link's geometry radius
+        (its AABB corners from its frame origin), which no configuration changes. A prismatic
+        joint moves its links by |dq|. Mimic joints add their multiplier's share to the joint that
+        drives them, passive joints (a linkage's map) the largest slope of the map. Along a
+        straight joint-space segment dq, no point moves more than sum(|dq_i| * radius_i).
+        """
+        pb, body, client = self._pb, self.body, self.client
+        count = pb.getNumJoints(body, physicsClientId=client)
+        infos = [pb.getJointInfo(body, i, physicsClientId=client) for i in range(count)]
+        base = np.array(pb.getBasePositionAndOrientation(body, physicsClientId=client)[0])
+        origin = {-1: base}
+        for i in range(count):
+            origin[i] = np.array(pb.getLinkState(body, i, computeForwardKinematics=True,
+                                                 physicsClientId=client)[4])
+        children: dict[int, list[int]] = {}
+        for i, info in enumerate(infos):
+            children.setdefault(info[16], []).append(i)
+        radius = self._geometry_radii(count)
+        reach: dict[int, float] = {}
+        for k in [*range(count - 1, -1, -1), -1]:  # children have higher indices than their parents
+            below = [float(np.linalg.norm(origin[c] - origin[k])) + reach[c] for c in children.get(k, [])]
+            reach[k] = max([radius[k], *below])
+        by_name = {info[1].decode(): i for i, info in enumerate(infos)}
+        per_joint = {name: (1.0 if infos[i][2] == pb.JOINT_PRISMATIC else reach[i]) for name, i in by_name.items()}
+        n = len(self.robot.joints)
+        radii = np.zeros(n)
+        slopes = self._passive_slopes()
+        for name, drive in self.robot.drives().items():
+            if drive.kind == "main":
+                radii[drive.index] += abs(drive.multiplier) * per_joint[name]
+            elif drive.kind == "passive":
+                radii += abs(drive.multiplier) * slopes[drive.index] * per_joint[name]
+        return radii
+
+    def _geometry_radii(self, count: int, poses: int = 24) -> dict[int, float]:
+        """Per link, a bound on its collision geometry's distance from the link frame's origin.
+
+        Every world AABB contains the geometry, so the farthest AABB corner bounds it in every pose;
+        the smallest such bound over a few random poses is still a bound, and a tighter one (an
+        axis-aligned box around a turned link is much larger than the link)."""
+        pb, body, client = self._pb, self.body, self.client
+        rng = np.random.default_rng(0)
+        lows, highs = self.robot.lows(), self.robot.highs()
+        radius = {k: np.inf for k in range(-1, count)}
+        for q in [np.clip(np.zeros(len(lows)), lows, highs), *rng.uniform(lows, highs, (poses, len(lows)))]:
+            self._set(self._values(q[None])[0])
+            for k in range(-1, count):
+                if k == -1:
+                    frame = np.array(pb.getBasePositionAndOrientation(body, physicsClientId=client)[0])
+                else:
+                    frame = np.array(pb.getLinkState(body, k, computeForwardKinematics=True,
+                                                     physicsClientId=client)[4])
+                lo, hi = (np.array(v) for v in pb.getAABB(body, k, physicsClientId=client))
+                corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+                radius[k] = min(radius[k], float(np.max(np.linalg.norm(corners - frame, axis=1))))
+        return radius
+
+    def _passive_slopes(self, samples: int = 64) -> np.ndarray:
+        """(n_passive, n_main): the largest |d passive / d main| seen over random configurations (x1.25)."""
+        robot = self.robot
+        if robot.passive is None or not robot.passive_names:
+            return np.zeros((0, len(robot.joints)))
+        rng = np.random.default_rng(0)
+        q = rng.uniform(robot.lows(), robot.highs(), (samples, len(robot.joints)))
+        h = 1e-4
+        slopes = np.zeros((len(robot.passive_names), len(robot.joints)))
+        base = np.atleast_2d(robot.passive(q))
+        for i in range(len(robot.joints)):
+            dq = q.copy()
+            dq[:, i] += h
+            slopes[:, i] = np.max(np.abs(np.atleast_2d(robot.passive(dq)) - base), axis=0) / h
+        return slopes * 1.25
+
+    def what_collides(self, q: np.ndarray) -> list[str]:
+        """For one configuration (n,) SI, the colliding pairs in words: `forearm_link / table`."""
+        self._set(self._values(np.asarray(q)[None])[0])
+        found: list[str] = []
+        for (link, other_link), other in self._contacts():
+            if other == self.body and (link, other_link) in self._excluded:
+                continue
+            if other != self.body and link in self._fixed_to_base:
+                continue
+            mine = self._link_name(link)
+            theirs = self._link_name(other_link) if other == self.body else self._scene_names.get(other, f"body {other}")
+            pair = f"{mine} / {theirs}"
+            if pair not in found and f"{theirs} / {mine}" not in found:
+                found.append(pair)
+        return found
+
+    def _link_name(self, link: int) -> str:
+        if link == -1:
+            return self._pb.getBodyInfo(self.body, physicsClientId=self.client)[0].decode()
+        return self._pb.getJointInfo(self.body, link, physicsClientId=self.client)[12].decode()
+
+    def collides(self, q: np.ndarray) -> bool:
+        """One configuration (n,) SI: does it collide with the robot itself or the scene? (planners' hot path)"""
+        if self._passive_mask.any():
+            return bool(self.colliding(np.asarray(q)[None])[0])
+        self._set(np.asarray(q, dtype=float)[self._main_cols] * self._mult + self._offset)
+        return self._colliding()
+
+    def colliding(self, q: np.ndarray) -> np.ndarray:
+        """(N, n) main-joint values (SI) -> (N,) bool: collides with itself or the scene."""
+        values = self._values(np.atleast_2d(q))
+        out = np.empty(len(values), dtype=bool)
+        for k, row in enumerate(values):
+            self._set(row)
+            out[k] = self._colliding()
+        return out

@@ -1,0 +1,92 @@
+"""A URDF file as pybullet and our parser can read it, whatever shape it comes in.
+
+Labs publish URDFs with attributes in XML prefixes nobody declares (`drake:`, which urdfdom and
+pybullet ignore and an XML parser refuses), with `package://` meshes that only ROS knows where to
+find, or as `.xacro` sources. `loadable_urdf` gives the file pybullet should load (the URDF, or a
+copy with every mesh made absolute and the prefixes declared); `expand_xacro` turns a `.xacro`
+into URDF; `declared` makes the text parseable. Copies live under the temporary directory, named
+by the hash of their content.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+
+from mesh.urdf_resources import package_dir, with_absolute_meshes
+from tdgen.robot.errors import RobotError
+
+
+def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None) -> Path:
+    """The file pybullet should load for `path`: itself, or (where it has `package://` meshes or
+    undeclared XML prefixes) a copy with every mesh made absolute as ROS resolves it and the prefixes
+    declared. A mesh that cannot be found is a RobotError naming it and where it was looked for."""
+    text = path.read_text(encoding="utf-8", errors="replace")
+    resolved, missing = with_absolute_meshes(text, path.parent, packages)
+    if missing:
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        raise RobotError(f"{path}: {missing[0]}{more}; name package directories with --package-path NAME=DIR, "
+                         "ROS_PACKAGE_PATH or AMENT_PREFIX_PATH")
+    if "package://" not in text and declared(text) == text:
+        return path
+    return _resolved_copy(path.name, declared(resolved))
+
+
+def _resolved_copy(name: str, text: str) -> Path:
+    """`text` as a file called `name`, under the temporary directory, named by its content's hash."""
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    out = Path(tempfile.gettempdir()) / "twinmesh-urdf" / digest / name
+    if not out.is_file():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(f".{out.name}.{os.getpid()}")
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(out)
+    return out
+
+
+def expand_xacro(path: Path, packages: Mapping[str, Path] | None = None) -> Path:
+    """A `.xacro` file expanded to URDF (with the `xacro` package, when installed): `$(find NAME)` is
+    resolved as `package://NAME` is (explicit packages, ROS_PACKAGE_PATH, AMENT_PREFIX_PATH, then
+    upward from the file). The URDF is written beside the other resolved copies and returned."""
+    try:
+        import xacro
+        import xacro.substitution_args as substitution
+    except ImportError:
+        raise RobotError(f"{path}: a .xacro file needs the xacro package (pip install xacro), or expand it "
+                         "first (xacro FILE > robot.urdf)") from None
+
+    def find(name: str) -> str:
+        found = package_dir(name, path.parent, packages)
+        if found is None:
+            raise RobotError(f"{path}: $(find {name}): no package {name!r} (name it with --package-path "
+                             f"{name}=DIR, ROS_PACKAGE_PATH or AMENT_PREFIX_PATH)")
+        return str(found)
+
+    original = substitution._eval_find
+    substitution._eval_find = find  # xacro asks ament_index; twinmesh answers as for package:// URIs
+    try:
+        text = xacro.process_file(str(path)).toprettyxml(indent="  ")
+    except RobotError:
+        raise
+    except Exception as exc:  # xacro raises its own XacroException and plain errors alike
+        raise RobotError(f"{path}: xacro could not expand it ({type(exc).__name__}: {exc})") from None
+    finally:
+        substitution._eval_find = original
+    return _resolved_copy(path.name.removesuffix(".xacro").removesuffix(".urdf") + ".urdf", text)
+
+
+_PREFIXED_NAME = re.compile(r"[<\s/]([A-Za-z_][\w.-]*):[A-Za-z_][\w.-]*(?=[\s=/>])")
+
+
+def declared(text: str) -> str:
+    """The URDF with every undeclared XML namespace prefix (`drake:`, `gazebo:`) declared on <robot>:
+    urdfdom and pybullet ignore them, an XML parser would refuse the file."""
+    prefixes = {p for p in _PREFIXED_NAME.findall(text) if p not in ("xml", "xmlns")}
+    undeclared = sorted(p for p in prefixes if f"xmlns:{p}=" not in text)
+    if not undeclared:
+        return text
+    declarations = "".join(f' xmlns:{p}="urn:twinmesh:undeclared:{p}"' for p in undeclared)
+    return re.sub(r"<robot\b", "<robot" + declarations, text, count=1)

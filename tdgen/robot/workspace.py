@@ -1,0 +1,121 @@
+"""The workspace as a solid: convex hull (and an optional alpha shape) of the collision-free points.
+
+The convex hull is what the TD links and what targets are checked against: it is unique, fast and
+watertight. It over-states the workspace where the reachable set is not convex (the table a robot
+stands on lies inside it), hence the collision probability beside it in `tdgen.robot.workspace_check`, and the
+optional alpha shape, a tighter but tunable picture for people to look at.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull, Delaunay, QhullError
+
+ALPHA_SPACINGS = 3.0  # default alpha radius, in typical point spacings
+
+
+class WorkspaceError(Exception):
+    """Points that span no solid (too few, or all on a plane or a line)."""
+
+
+@dataclass(frozen=True)
+class Solid:
+    mesh: trimesh.Trimesh
+    volume: float  # in the points' unit, cubed
+
+
+def bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min xyz, max xyz) of the points."""
+    if len(points) == 0:
+        raise WorkspaceError("no collision-free point: every sampled configuration collides")
+    return points.min(axis=0), points.max(axis=0)
+
+
+def qhull(points: np.ndarray) -> ConvexHull:
+    """scipy's hull of the points, or a WorkspaceError saying why there is none."""
+    if len(points) < 4:
+        raise WorkspaceError(f"{len(points)} collision-free points span no volume (a hull needs 4 or more)")
+    try:
+        return ConvexHull(points)
+    except QhullError:
+        rank = np.linalg.matrix_rank(points - points.mean(axis=0), tol=1e-6 * np.ptp(points).max(initial=1.0))
+        shape = {0: "a single point", 1: "a line", 2: "a plane"}.get(int(rank), "a degenerate set")
+        raise WorkspaceError(f"the {len(points)} collision-free points lie on {shape}: no workspace volume "
+                             "(a robot with fewer than three independent motions?)") from None
+
+
+def convex_hull(points: np.ndarray) -> Solid:
+    """The convex hull as a watertight mesh with outward facet normals."""
+    hull = qhull(points)
+    faces = hull.simplices.copy()
+    p = hull.points
+    normals = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
+    inward = np.einsum("ij,ij->i", normals, hull.equations[:, :3]) < 0
+    faces[inward] = faces[inward][:, ::-1]
+    return Solid(_compact(p, faces), float(hull.volume))
+
+
+def alpha_shape(points: np.ndarray, radius: float | None = None) -> Solid | None:
+    """The union of Delaunay tetrahedra whose circumsphere radius is below `radius`; None if empty.
+
+    Without `radius`, it is ALPHA_SPACINGS times the typical point spacing (hull volume / N)^(1/3).
+    The surface may have non-manifold edges where the shape pinches; the volume is exact all the
+    same (the sum of the kept tetrahedra). Degenerate input (flat, too few points) gives None.
+    """
+    if len(points) < 5:
+        return None
+    try:
+        tri = Delaunay(points)
+        hull_volume = ConvexHull(points).volume
+    except QhullError:
+        return None
+    if radius is None:
+        radius = ALPHA_SPACINGS * (hull_volume / len(points)) ** (1 / 3)
+    tets = tri.simplices
+    a, b, c, d = (points[tets[:, k]] for k in range(4))
+    u, v, w = b - a, c - a, d - a
+    six_volume = np.einsum("ij,ij->i", u, np.cross(v, w))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        offset = ((u * u).sum(1)[:, None] * np.cross(v, w) + (v * v).sum(1)[:, None] * np.cross(w, u)
+                  + (w * w).sum(1)[:, None] * np.cross(u, v)) / (2 * six_volume[:, None])
+        keep = np.linalg.norm(offset, axis=1) < radius
+    keep &= np.abs(six_volume) > 0
+    if not keep.any():
+        return None
+    kept = tets[keep]
+    # each tetrahedron's four faces, with the vertex opposite to each
+    faces = np.concatenate([kept[:, [1, 2, 3]], kept[:, [0, 3, 2]], kept[:, [0, 1, 3]], kept[:, [0, 2, 1]]])
+    opposite = np.concatenate([kept[:, 0], kept[:, 1], kept[:, 2], kept[:, 3]])
+    _, first, counts = np.unique(np.sort(faces, axis=1), axis=0, return_index=True, return_counts=True)
+    boundary = first[counts == 1]
+    faces, opposite = faces[boundary], points[opposite[boundary]]
+    p0, p1, p2 = (points[faces[:, k]] for k in range(3))
+    towards_opposite = np.einsum("ij,ij->i", np.cross(p1 - p0, p2 - p0), opposite - p0) > 0
+    faces[towards_opposite] = faces[towards_opposite][:, ::-1]
+    return Solid(_compact(points, faces), float(np.abs(six_volume[keep]).sum() / 6))
+
+
+def _compact(points: np.ndarray, faces: np.ndarray) -> trimesh.Trimesh:
+    """A mesh of only the vertices the faces use."""
+    used, inverse = np.unique(faces, return_inverse=True)
+    return trimesh.Trimesh(points[used], inverse.reshape(faces.shape), process=False)
+
+
+def write_stl(solid: Solid, path: Path) -> None:
+    """Binary STL with facet normals."""
+    data = solid.mesh.export(file_type="stl")
+    assert isinstance(data, bytes), "trimesh exports STL as bytes"
+    path.write_bytes(data)
+
+
+def read_points_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (N, 3) mm, collision (N,) bool) from a points.csv."""
+    with open(path) as f:
+        header = f.readline().strip().split(",")
+    if header[:4] != ["x", "y", "z", "collision"]:
+        raise ValueError(f"{path}: not a points CSV (header starts {header[:4]})")
+    table = np.loadtxt(path, delimiter=",", skiprows=1, usecols=(0, 1, 2, 3), ndmin=2)
+    return table[:, :3], table[:, 3].astype(bool)

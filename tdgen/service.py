@@ -1,0 +1,347 @@
+"""The TD generator on the mesh: the `tdgen` Thing generates every robot's TD and workspace artefacts.
+
+It watches Things join (liveliness); a robot is a Thing whose TD links its twin (`rel: "twin"`,
+`files/twin.json`, a `mesh.messages.scene.TwinDescription`). For each robot it fetches the twin over
+Zenoh, runs `tdgen.generate` (the same pipeline as `twinmesh tdgen`) and serves the results as
+its own files `<robot>.td.json`, `<robot>.points.csv`, `<robot>.workspace.stl` and
+`<robot>.scene.json`, then emits `generated {robot, hash, version}` (or `failed {robot, version,
+error}`). The robot, subscribed to `generated` before it joined, fetches them and serves its own TD
+from them. A robot's `twinChanged` event (its surroundings changed) makes the service fetch the twin
+again and regenerate.
+
+Results are cached on disk under `cache_dir/<key>/` (tdgen.cache), the key derived from everything
+that shapes the output (the URDF's content and its meshes', base, scene, samples, seed, end effector,
+calibration, frame, the robot's name, which titles its TD, and the code that builds them): a robot
+that restarts, or whose scene goes back to an earlier state, gets its files at once. The property `robots` tells, per robot,
+`{status: generating|ready|failed, hash, version, seconds, cached, error}`.
+
+Generations run one at a time on one thread (each may use `workers` processes for the collision
+checks; by default one process up to 20 000 samples, every core above); requests for a robot that
+arrive while it waits are merged, the newest twin wins. A stop does not wait for a generation under
+way: its temporary directory is left behind, never a half-written cache entry.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import queue
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, Callable
+
+import msgspec
+
+from mesh.fabric.client import MeshClient
+from mesh.fabric.server import ExposedThing
+from mesh.fabric.settings import MeshSettings
+from mesh.messages.lab import RobotStatus
+from mesh.messages.scene import TWIN_CHANGED, TWIN_REL, TwinDescription
+from mesh.wot import units
+from mesh.wot.problem import NotFound, Problem, TimedOut, Unavailable
+from mesh.wot.td import ThingDescription, decode_td, thing_id
+from tdgen.cache import ArtefactCache, cache_key
+
+log = logging.getLogger(__name__)
+
+THING = "tdgen"
+ARTEFACTS = {  # file suffix -> content type; the generated file is named like the suffix
+    "td.json": "application/json",
+    "points.csv": "text/csv",
+    "workspace.stl": "model/stl",
+    "scene.json": "application/json",
+}
+SMALL_RUN = 20_000  # samples up to which one process beats a pool (its start-up costs ~1 s per worker)
+
+
+def default_cache_dir() -> Path:
+    """`$TWINMESH_CACHE/tdgen`, or `~/.cache/twinmesh/tdgen`."""
+    root = os.environ.get("TWINMESH_CACHE")
+    return (Path(root).expanduser() if root else Path.home() / ".cache" / "twinmesh") / "tdgen"
+
+
+def service_td() -> ThingDescription:
+    status = {"type": "object", "properties": {
+        "status": {"type": "string", "enum": ["generating", "ready", "failed"]},
+        "version": {"type": "integer", "minimum": 0}, "hash": {"type": "string"},
+        "seconds": {"type": "number", "minimum": 0, "unit": units.SECOND}, "cached": {"type": "boolean"},
+        "progress": {"type": "number", "minimum": 0, "maximum": 1, "unit": units.UNITLESS,
+                     "description": "Share of the workspace samples checked so far, while generating"},
+        "error": {"type": "string"}}}
+    return decode_td({
+        "title": THING,
+        "id": thing_id(THING),
+        "description": (
+            "The twinmesh TD generator. It generates the TD, sampled points (CSV), workspace hull (STL) and scene "
+            "of every robot on the mesh (a Thing linking its twin, rel=twin) and serves them as files "
+            "<robot>.td.json, <robot>.points.csv, <robot>.workspace.stl and <robot>.scene.json; results are "
+            "cached by a hash of their inputs."),
+        "properties": {
+            "robots": {"title": "Robots", "description": "Per robot: generation status, input hash, twin version, "
+                       "seconds taken, whether it came from the cache, the error if it failed.",
+                       "type": "object", "additionalProperties": status, "readOnly": True, "observable": True},
+        },
+        "events": {
+            "generated": {"title": "Generated", "description": "A robot's artefacts are ready to fetch.",
+                          "data": {"type": "object", "required": ["robot", "hash", "version"], "properties": {
+                              "robot": {"type": "string"}, "hash": {"type": "string"},
+                              "version": {"type": "integer", "minimum": 0}}}},
+            "failed": {"title": "Generation failed", "description": "A robot's generation failed; `error` says why.",
+                       "data": {"type": "object", "required": ["robot", "version", "error"], "properties": {
+                           "robot": {"type": "string"}, "version": {"type": "integer", "minimum": 0},
+                           "error": {"type": "string"}}}},
+        },
+    })
+
+
+class TdgenService:
+    """The `tdgen` Thing on one session; use as a context manager."""
+
+    def __init__(self, session, settings: MeshSettings, cache_dir: str | Path | None = None,
+                 workers: int | None = None):
+        self.session, self.settings, self.keys = session, settings, settings.keys
+        self.cache_dir = Path(cache_dir).expanduser() if cache_dir else default_cache_dir()
+        self.cache = ArtefactCache(self.cache_dir)
+        self.workers = workers
+        self.client = MeshClient(session, settings)
+        self.thing = ExposedThing(session, service_td(), THING, self.keys)
+        self.thing.on_read("robots", self.robots)
+        self.thing.on_any_file(self._file)
+        self._robots: dict[str, RobotStatus] = {}
+        self._ready: dict[str, str] = {}  # robot -> hash of its latest artefacts (served while others generate)
+        self._pending: dict[str, TwinDescription] = {}
+        self._lock = threading.Lock()
+        self._fetching = ThreadPoolExecutor(4, thread_name_prefix="tdgen-fetch")
+        # a daemon thread, not an executor: a stop must not wait for a generation to finish
+        self._queue: queue.SimpleQueue[str | None] = queue.SimpleQueue()
+        self._generator = threading.Thread(target=self._generate_loop, name="tdgen-generate", daemon=True)
+        self._declared: list[Any] = []
+
+    def __enter__(self) -> "TdgenService":
+        from mesh.fabric.directory import Directory
+
+        self.cache_dir.mkdir(parents=True, exist_ok=True)
+        self._generator.start()
+        self.thing.expose()
+        self._declared.append(self.session.declare_subscriber(self.keys.event("*", TWIN_CHANGED), self._twin_changed))
+        directory = Directory(self.session, self.keys, on_join=self._joined)
+        self._declared.append(directory)
+        self.client.presence = directory
+        log.info("tdgen service on the mesh (cache %s)", self.cache_dir)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for d in reversed(self._declared):
+            try:
+                (d.close if hasattr(d, "close") else d.undeclare)()
+            except Exception:  # the session may be closing
+                pass
+        self._fetching.shutdown(wait=False, cancel_futures=True)
+        self._queue.put(None)
+        self.thing.destroy()
+
+    # --- the Thing -------------------------------------------------------------------------------
+    def robots(self) -> dict[str, Any]:
+        with self._lock:
+            return {name: msgspec.to_builtins(s) for name, s in sorted(self._robots.items())}
+
+    def _set_status(self, robot: str, status: RobotStatus) -> None:
+        with self._lock:
+            self._robots[robot] = status
+        self.thing.emit_property_change("robots", self.robots())
+
+    def _file(self, name: str) -> tuple[bytes, str]:
+        for suffix in ARTEFACTS:
+            robot = name.removesuffix(f".{suffix}")
+            if robot != name:
+                break
+        else:
+            raise NotFound(f"tdgen has no file {name!r} (files are <robot>.{{{','.join(ARTEFACTS)}}})")
+        with self._lock:
+            status, ready = self._robots.get(robot), self._ready.get(robot)
+        if ready is None:
+            if status is not None and status.status == "generating":
+                raise Unavailable(f"{robot}'s artefacts are being generated", reason="workspace-generating")
+            raise NotFound(f"tdgen has generated nothing for {robot!r}")
+        return (self.cache_dir / ready / suffix).read_bytes(), ARTEFACTS[suffix]
+
+    # --- discovery (Zenoh threads: hand off, never block) -----------------------------------------
+    def _joined(self, thing: str) -> None:
+        if thing != THING:
+            self._fetching.submit(self._consider, thing)
+
+    def _twin_changed(self, sample) -> None:
+        parsed = self.keys.parse(str(sample.key_expr))
+        if parsed is not None:
+            self._fetching.submit(self._consider, parsed.thing)
+
+    def _consider(self, thing: str) -> None:
+        """Fetch a Thing's TD; if it links a twin, fetch that and ask for a generation."""
+        try:
+            td = self._fetch_td(thing)
+            link = next((link for link in td.links if link.rel == TWIN_REL), None)
+            if link is None:
+                return
+            name = link.href.rsplit("/", 1)[-1]
+            twin = msgspec.json.decode(self.client.file(thing, name).payload, type=TwinDescription)
+        except (Problem, msgspec.DecodeError, msgspec.ValidationError) as e:
+            log.warning("%s: cannot read its twin: %s", thing, e)
+            return
+        if twin.robot != thing:
+            log.warning("%s: its twin describes %r; ignored", thing, twin.robot)
+            return
+        self.request(twin)
+
+    def _fetch_td(self, thing: str, attempts: int = 8) -> ThingDescription:
+        """A peer that just joined may not be reachable by queries yet, and a router taking thousands of
+        sessions may answer late (a TD timed out while 10,000 devices joined): retry with backoff."""
+        delay = 0.05
+        for attempt in range(attempts):
+            try:
+                return self.client.td(thing)
+            except (Unavailable, TimedOut):
+                if attempt == attempts - 1:
+                    raise
+                time.sleep(delay)
+                delay = min(delay * 2, 1.0)
+        raise AssertionError("unreachable")
+
+    # --- generation ------------------------------------------------------------------------------
+    def request(self, twin: TwinDescription) -> None:
+        """Generate (or fetch from the cache) for this twin; merged with a request still waiting."""
+        with self._lock:
+            waiting = twin.robot in self._pending
+            self._pending[twin.robot] = twin
+        if not waiting:
+            self._queue.put(twin.robot)
+
+    def _generate_loop(self) -> None:
+        while (robot := self._queue.get()) is not None:
+            with self._lock:
+                twin = self._pending.pop(robot, None)
+            if twin is None:
+                continue
+            try:
+                self.generate(twin)
+            except Exception:  # publishing on a closing session; the next request tries again
+                log.exception("%s: generation could not be reported", robot)
+
+    def generate(self, twin: TwinDescription) -> RobotStatus:
+        """Make the artefacts of `twin` available (cache or generation), publish the status and the event."""
+        key = artefact_key(twin)
+        started = time.perf_counter()
+        cached = self.cache.has(key)
+        if not cached:
+            self._set_status(twin.robot, RobotStatus("generating", twin.version, key, progress=0.0))
+            try:
+                make_artefacts(twin, self.cache, key, self.workers, self._progress_reporter(twin, key))
+            except Exception as e:  # noqa: BLE001 - every failure is reported on the mesh
+                expected = isinstance(e, _user_errors())
+                error = str(e) if expected else f"{type(e).__name__}: {e}"
+                log.warning("%s: generation failed: %s", twin.robot, error, exc_info=not expected)
+                status = RobotStatus("failed", twin.version, key, round(time.perf_counter() - started, 3), False,
+                                     error)
+                self._set_status(twin.robot, status)
+                self.thing.emit_event("failed", {"robot": twin.robot, "version": twin.version, "error": error})
+                return status
+        seconds = round(time.perf_counter() - started, 3)
+        status = RobotStatus("ready", twin.version, key, seconds, cached)
+        with self._lock:
+            self._ready[twin.robot] = key
+        self._set_status(twin.robot, status)
+        log.info("%s: artefacts ready (%s, %.2f s, version %d, hash %s)", twin.robot,
+                 "cached" if cached else "generated", seconds, twin.version, key)
+        self.thing.emit_event("generated", {"robot": twin.robot, "hash": key, "version": twin.version})
+        return status
+
+    def _progress_reporter(self, twin: TwinDescription, key: str) -> Callable[[float], None]:
+        """Publishes the generation's progress at most twice a second (and its end)."""
+        last = [0.0]
+
+        def report(fraction: float) -> None:
+            now = time.monotonic()
+            if now - last[0] >= 0.5 or fraction >= 1.0:
+                last[0] = now
+                self._set_status(twin.robot, RobotStatus("generating", twin.version, key,
+                                                         progress=round(min(fraction, 1.0), 3)))
+        return report
+
+
+def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, workers: int | None = None,
+                   on_progress: Callable[[float], None] | None = None) -> Path:
+    """Generate `twin`'s artefacts into the cache entry `key` (the one pipeline of `twinmesh tdgen`)."""
+    from tdgen.generate import generate
+    from tdgen.robot.calibration import fit_calibration
+    from tdgen.robot.model import Robot, RobotError, resolve_urdf
+    from tdgen.td import robot_id
+
+    path = resolve_urdf(twin.urdf)
+    sha = hashlib.sha256(path.read_bytes()).hexdigest()
+    if sha != twin.urdf_sha256:
+        raise RobotError(f"{path}: its content differs from the robot's URDF (sha256 {sha[:12]} here, "
+                         f"{twin.urdf_sha256[:12]} there): run tdgen where the robot's URDF and meshes are")
+    robot = Robot.load(path, ee=twin.ee, base_link=twin.base_link, fixed=twin.fixed,
+                       packages={k: Path(v) for k, v in twin.packages.items()},
+                       allowed_collisions=twin.allowed_collisions)
+    calibration = None
+    if twin.calibration:
+        import numpy as np
+
+        rows = np.asarray(twin.calibration, dtype=float).reshape(-1, 6)
+        calibration = fit_calibration(rows[:, :3], rows[:, 3:])
+    workers = workers or (1 if twin.samples <= SMALL_RUN else None)
+
+    def fill(folder: Path) -> None:
+        result = generate(robot, scene_of(twin), twin.samples, twin.seed, folder, calibration=calibration,
+                          frame=twin.frame, name=twin.robot, thing_id=robot_id(twin.robot), workers=workers,
+                          on_progress=on_progress)
+        (folder / "td.json").write_bytes(msgspec.json.encode(result.td))  # the TD the robot serves on the mesh
+        for warning in result.warnings:
+            log.warning("%s: %s", twin.robot, warning)
+        (folder / "twin.json").write_bytes(msgspec.json.encode(twin))
+
+    return cache.make(key, fill)
+
+
+def artefact_key(twin: TwinDescription) -> str:
+    """The cache key of `twin`'s artefacts, its URDF's meshes included when the URDF is here."""
+    return cache_key(twin, _urdf_here(twin))
+
+
+def _urdf_here(twin: TwinDescription) -> Path | None:
+    """The twin's URDF on this machine, if it is here (its meshes are then part of the cache key)."""
+    from tdgen.robot.model import RobotError, resolve_urdf
+
+    try:
+        return resolve_urdf(twin.urdf)
+    except RobotError:
+        return None
+
+
+def _user_errors() -> tuple[type[Exception], ...]:
+    """Failures a robot's twin can cause (a bad URDF, scene or calibration, no workspace volume)."""
+    from tdgen.robot.calibration import CalibrationError
+    from tdgen.robot.model import RobotError
+    from tdgen.robot.surroundings import SceneError
+    from tdgen.robot.workspace import WorkspaceError
+
+    return RobotError, SceneError, CalibrationError, WorkspaceError, msgspec.ValidationError
+
+
+def scene_of(twin: TwinDescription):
+    """The tdgen Scene of a twin: its bodies, with the robot standing at its base."""
+    from tdgen.robot.surroundings import RobotPlacement, Scene
+
+    placement = RobotPlacement.from_quaternion(tuple(twin.base.p), tuple(twin.base.q))  # type: ignore[arg-type]
+    return msgspec.convert({"name": "scene", **twin.scene, "robot": msgspec.to_builtins(placement)}, Scene)
+
+
+def run(settings: MeshSettings, stop: threading.Event, cache_dir: str | None = None,
+        workers: int | None = None) -> None:
+    """Process entry (`twinmesh up` starts it after the router): serve until `stop` is set."""
+    from mesh.fabric.session import open_session
+
+    with open_session(settings, service=True) as session, TdgenService(session, settings, cache_dir, workers):
+        stop.wait()

@@ -1,3 +1,0 @@
-from twinmesh.cli.main import main
-
-main()

@@ -1,1 +1,0 @@
-"""Robot TD generation: workspace sampling, the generate pipeline, TD assembly."""
