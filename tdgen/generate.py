@@ -25,7 +25,7 @@ from mesh.messages.scene import DEFAULT_SAMPLES
 from mesh.wot.td import NOSEC, Security
 from tdgen.robot.calibration import Calibration, CalibrationError, Model, load_calibration
 from tdgen.robot.model import Robot
-from tdgen.robot.surroundings import RobotPlacement, Scene, default_scene, encode_scene, load_scene
+from tdgen.robot.surroundings import RobotPlacement, Surroundings, default_scene, encode_scene, load_scene
 from tdgen.robot.workspace import WorkspaceError, alpha_shape, bounds, convex_hull, write_stl
 from tdgen.sampling import Samples, sample_workspace, write_points_csv
 from tdgen.td import policy, robot_td, served_td, slug, thing_model
@@ -61,11 +61,11 @@ def _robot(robot: Robot | str | Path, ee: str | None) -> Robot:
     return robot if isinstance(robot, Robot) else Robot.load(robot, ee=ee)
 
 
-def _scene(scene: Scene | str | Path | None, mount: RobotPlacement | None, surface: bool) -> Scene:
+def _scene(scene: Surroundings | str | Path | None, mount: RobotPlacement | None, surface: bool) -> Surroundings:
     """The scene as given (the robot moved to `mount` if given), else the robot on its mounting surface."""
     if scene is None:
         return default_scene(mount, surface)
-    loaded = scene if isinstance(scene, Scene) else load_scene(scene)
+    loaded = scene if isinstance(scene, Surroundings) else load_scene(scene)
     return msgspec.structs.replace(loaded, robot=mount) if mount is not None else loaded
 
 
@@ -79,7 +79,7 @@ def _calibration(calibration: Calibration | str | Path | None, model: Model, fra
     return calibration
 
 
-def _description(robot: Robot, scene: Scene, samples: Samples, seed: int | None, volume: float,
+def _description(robot: Robot, scene: Surroundings, samples: Samples, seed: int | None, volume: float,
                  calibration: Calibration | None, frame: Frame) -> str:
     pose = scene.robot
     tilt = f", roll {pose.roll:g} deg, pitch {pose.pitch:g} deg" if pose.roll or pose.pitch else ""
@@ -93,7 +93,7 @@ def _description(robot: Robot, scene: Scene, samples: Samples, seed: int | None,
             f"collision-free end-effector positions, {volume / 1e9:.4g} m^3. {policy()}")
 
 
-def generate(robot: Robot | str | Path, scene: Scene | str | Path | None = None, samples: int = DEFAULT_SAMPLES,
+def generate(robot: Robot | str | Path, scene: Surroundings | str | Path | None = None, samples: int = DEFAULT_SAMPLES,
              seed: int | None = 0, out_dir: str | Path = "td-out", base_url: str | None = None,
              calibration: Calibration | str | Path | None = None, frame: Frame = "twin", concave: bool = False,
              progress: bool = False, *, name: str | None = None, thing_id: str | None = None,
@@ -102,7 +102,7 @@ def generate(robot: Robot | str | Path, scene: Scene | str | Path | None = None,
              mount: RobotPlacement | None = None, surface: bool = True) -> GenerationResult:
     """Generate a robot's TD and workspace artefacts into `out_dir`.
 
-    `robot` is a Robot or a URDF path (`ee` then picks the end-effector link); `scene` a Scene, a
+    `robot` is a Robot or a URDF path (`ee` then picks the end-effector link); `scene` a Surroundings, a
     scene file or a shipped scene name (None: the robot on the surface it is mounted on, or alone
     without `surface`); `mount` places the robot elsewhere than the scene says; `calibration` a Calibration or a
     pairs CSV. `base_url` is the Thing's URL on an HTTP adapter (`http://host:8080/ur10`): its last
@@ -179,7 +179,7 @@ MOSTLY_COLLIDING = 0.5  # share of colliding samples above which a workspace is 
 PAIR_SAMPLES = 200      # colliding samples asked which links touch
 
 
-def collision_warnings(robot: Robot, scene: Scene, samples: Samples) -> list[str]:
+def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples) -> list[str]:
     """When most samples collide, say so and name the link pairs that collide most, and whether the
     robot collides already at rest (joints at 0, within their limits): then the URDF's collision
     meshes overlap by design, the usual cause."""

@@ -26,7 +26,7 @@ from tqdm import tqdm
 from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.kinematics import ForwardKinematics
 from tdgen.robot.model import Robot
-from tdgen.robot.surroundings import Scene
+from tdgen.robot.surroundings import Surroundings
 
 CHUNK = 1000
 
@@ -46,7 +46,7 @@ class Samples:
 _world: CollisionWorld | Exception | None = None  # the worker process's own world, or why it has none
 
 
-def _init_worker(robot: Robot, scene: Scene) -> None:
+def _init_worker(robot: Robot, scene: Surroundings) -> None:
     global _world
     try:
         _world = CollisionWorld(robot, scene)
@@ -70,7 +70,7 @@ def default_workers() -> int:
     return os.cpu_count() or 1
 
 
-def sample_workspace(robot: Robot, scene: Scene, n: int, seed: int | None = 0, workers: int | None = None,
+def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None = 0, workers: int | None = None,
                      progress: bool = False, on_progress: Callable[[float], None] | None = None) -> Samples:
     """Draw n configurations and find their end-effector positions and collisions.
 

@@ -331,11 +331,11 @@ def _user_errors() -> tuple[type[Exception], ...]:
 
 
 def scene_of(twin: TwinDescription):
-    """The tdgen Scene of a twin: its bodies, with the robot standing at its base."""
-    from tdgen.robot.surroundings import RobotPlacement, Scene
+    """The tdgen Surroundings of a twin: its bodies, with the robot standing at its base."""
+    from tdgen.robot.surroundings import RobotPlacement, Surroundings
 
     placement = RobotPlacement.from_quaternion(tuple(twin.base.p), tuple(twin.base.q))  # type: ignore[arg-type]
-    return msgspec.convert({"name": "scene", **twin.scene, "robot": msgspec.to_builtins(placement)}, Scene)
+    return msgspec.convert({"name": "scene", **twin.scene, "robot": msgspec.to_builtins(placement)}, Surroundings)
 
 
 def run(settings: MeshSettings, stop: threading.Event, cache_dir: str | None = None,

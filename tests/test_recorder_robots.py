@@ -22,7 +22,7 @@ from mesh.fabric.settings import MeshSettings
 from mesh.messages.relations import MODEL, POINTS, WORKSPACE
 from mesh.messages.relations import TWIN as TWIN_REL
 from mesh.messages.scene import Pose, RobotModel, SceneDescription, TwinDescription
-from mesh.recorder.robots import RobotDrawer, RobotFiles, Workspace, joint_units, link_file, to_twin_frame
+from mesh.recorder.robots import DrawnWorkspace, RobotDrawer, RobotFiles, joint_units, link_file, to_twin_frame
 from mesh.recorder.scene import SceneDrawer, SceneFiles, lab_blueprint
 from mesh.wot.td import DataSchema, Link, PropertyAffordance, ThingDescription
 
@@ -233,8 +233,8 @@ def _drawn(tmp_path: Path, draw) -> Path:
     return path
 
 
-def _workspace() -> Workspace:
-    return Workspace.from_files("ur10", POINTS_1, HULL_1, TWIN)
+def _workspace() -> DrawnWorkspace:
+    return DrawnWorkspace.from_files("ur10", POINTS_1, HULL_1, TWIN)
 
 
 def test_a_robot_in_the_worlds_scene_is_drawn_once_with_the_things_workspace(tmp_path):
@@ -280,7 +280,7 @@ def test_a_bad_urdf_is_reported_and_the_joints_still_recorded(tmp_path):
         problems = robots.draw_robot(RobotFiles("arm", TWIN, "<robot"))
         assert len(problems) == 1 and problems[0].startswith("cannot draw robot arm")
         robots.add_joints("arm", {"j1": 90.0}, time.time(), 0, None)
-        lines = robots.draw_workspace(Workspace.from_files("arm", POINTS_1, HULL_1, TWIN))
+        lines = robots.draw_workspace(DrawnWorkspace.from_files("arm", POINTS_1, HULL_1, TWIN))
         assert "not placed" in lines[0].archetype.text.as_arrow_array().to_pylist()[0]
         robots.flush()
 
@@ -413,10 +413,10 @@ def test_a_mesh_based_urdf_is_drawn_with_its_meshes(tmp_path):
     import pybullet_data
     from rerun.chunk import RrdReader
 
-    from mesh.recorder.scene import Robot
+    from mesh.recorder.scene import DrawnRobot
 
     urdf = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
-    robot = Robot.load("panda", urdf.read_text(), "world/robots/panda", urdf.parent)
+    robot = DrawnRobot.load("panda", urdf.read_text(), "world/robots/panda", urdf.parent)
     assert robot.missing == []
     path = _drawn(tmp_path, lambda rec: robot.draw(rec, Pose((0.0, 0.0, 0.0))))
     meshes = {}  # entity -> bytes of the mesh file recorded there
@@ -432,10 +432,10 @@ def test_a_mesh_based_urdf_is_drawn_with_its_meshes(tmp_path):
 
 
 def test_a_mesh_that_cannot_be_found_is_named_with_where_it_was_looked_for(tmp_path):
-    from mesh.recorder.scene import Robot
+    from mesh.recorder.scene import DrawnRobot
 
     urdf = ('<robot name="r"><link name="base"><visual><geometry><mesh filename="package://arm/meshes/base.stl"/>'
             '</geometry></visual></link></robot>')
-    robot = Robot.load("r", urdf, "world/robots/r", tmp_path)
+    robot = DrawnRobot.load("r", urdf, "world/robots/r", tmp_path)
     assert robot.missing and robot.missing[0].startswith("mesh package://arm/meshes/base.stl not found (looked in ")
     assert str(tmp_path / "arm" / "meshes" / "base.stl") in robot.missing[0]

@@ -17,8 +17,8 @@ from tdgen.robot.surroundings import (
     BoxBody,
     CylinderBody,
     RobotPlacement,
-    Scene,
     SceneError,
+    Surroundings,
     UrdfBody,
     build_into,
     cluttered_lab,
@@ -43,7 +43,7 @@ def test_the_benchmark_scene_has_many_bodies_and_is_what_the_function_builds():
 
 def test_encoded_scene_decodes_to_the_same_scene():
     lab = cluttered_lab()
-    assert msgspec.json.decode(encode_scene(lab), type=Scene) == lab
+    assert msgspec.json.decode(encode_scene(lab), type=Surroundings) == lab
 
 
 def test_urdf_paths_are_relative_to_the_scene_file(tmp_path):
@@ -77,7 +77,7 @@ def test_a_missing_scene_lists_the_shipped_ones():
 
 
 def test_bodies_are_built_where_the_scene_puts_them():
-    scene = Scene(name="t", bodies=[
+    scene = Surroundings(name="t", bodies=[
         BoxBody(size=(0.2, 0.4, 0.6), position=(1.0, 2.0, 3.0), rpy=(0.0, 0.0, 90.0)),
         CylinderBody(radius=0.1, length=0.5, position=(-1.0, 0.0, 0.25)),
         UrdfBody(urdf="pybullet_data:cube.urdf", position=(0.0, -2.0, 0.5), scale=0.5),
@@ -97,7 +97,7 @@ def test_bodies_are_built_where_the_scene_puts_them():
         pb.disconnect(client)
 
 
-def _world(scene: Scene) -> CollisionWorld:
+def _world(scene: Surroundings) -> CollisionWorld:
     return CollisionWorld(Robot.load("ur10.urdf"), scene)
 
 
@@ -124,7 +124,7 @@ def test_self_collision_counts_but_not_for_adjacent_links():
 
 
 def test_the_robot_stands_at_the_scene_pose():
-    placed = Scene(name="p", robot=RobotPlacement(position=(5.0, 0.0, 0.0), yaw=90.0),
+    placed = Surroundings(name="p", robot=RobotPlacement(position=(5.0, 0.0, 0.0), yaw=90.0),
                    bodies=[BoxBody(size=(0.2, 0.2, 0.2), position=(5.0, 1.2, 0.13))])
     world = _world(placed)
     try:
@@ -144,7 +144,7 @@ def test_a_ceiling_mount_is_a_full_pose_the_collision_check_uses():
     up = np.radians([0.0, -90.0, 0.0, -90.0, 0.0, 0.0])
     results = {}
     for roll in (0.0, 180.0):
-        scene = Scene(name="room", robot=RobotPlacement(position=(0.0, 0.0, 1.0), roll=roll), bodies=[floor])
+        scene = Surroundings(name="room", robot=RobotPlacement(position=(0.0, 0.0, 1.0), roll=roll), bodies=[floor])
         world = CollisionWorld(robot, scene)
         try:
             results[roll] = world.what_collides(up)

@@ -6,7 +6,7 @@ import os
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import click
 import msgspec
@@ -202,13 +202,11 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     if not outlive_parent and follows_its_starter():
         die_with_parent(os.getppid(), grace=STARTER_GONE_GRACE)
     from devices.lab.readiness import (
-        LabDied,
         PortTaken,
         free_or_problem,
         free_port_near,
         serve_status,
         view_free_or_problem,
-        wait_ready,
     )
     from devices.lab.scenes import DEFAULT_SCENE, FLEET, scene_specs, scene_things
     from mesh.messages.lab import LabStatus
@@ -259,18 +257,8 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     set_title(f"up {scene}")
     sup.start()
     url = None if address is None else f"http://{address[0]}:{address[1]}/"
-    try:
-        wait_ready(peers, lambda: _lab_client(peers), things, _ready_timeout(things),
-                   alive=lambda: "stopped" if sup.stop.is_set() else sup.dead(),
-                   progress=lambda text: click.echo(f"twinmesh up: {text}", err=True), http=url)
-    except LabDied as e:
-        sup.shutdown()
-        if e.detail == "stopped":
-            sys.exit(0)
-        raise click.ClickException(f"{e.detail} while the lab was starting (its log is above); stopped the lab") from None
-    except Problem as e:
-        sup.shutdown()
-        raise click.ClickException(f"{e.detail}; stopped the lab") from None
+    _until_ready(sup, peers, things, _ready_timeout(things), http=url,
+                 died="while the lab was starting (its log is above); stopped the lab", failed="; stopped the lab")
     status = LabStatus(ready=True, scene=scene, things=things, http=url, zenoh=", ".join(settings.endpoints))
     from mesh.fabric.session import one_shot_session
 
@@ -313,7 +301,7 @@ def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], thin
     """`up SCENE --join ENDPOINT`: this host's router (listening where this host's devices connect) linked
     to the lab's router at ENDPOINT, and the scene's devices; ready once the lab sees them all. `direct`:
     no router here, the devices are clients of the lab's router."""
-    from devices.lab.readiness import LabDied, PortTaken, free_or_problem, wait_ready
+    from devices.lab.readiness import PortTaken, free_or_problem
 
     lab = msgspec.structs.replace(settings, listen=(), connect=(join,))
     if direct:
@@ -330,22 +318,32 @@ def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], thin
         sup = Supervisor(msgspec.structs.replace(settings, listen=()), [router, *specs])
     set_title(f"up {scene} --join {join}")
     sup.start()
+    _until_ready(sup, lab, things, max(JOIN_READY_TIMEOUT, _ready_timeout(things)), follow=False,
+                 died="while joining the lab (its log is above); stopped",
+                 failed=f" (is the lab at {join} running and listening there?); stopped")
+    where = f"this host's router on {', '.join(listen)}" if listen else "linked straight to the lab's router"
+    click.echo(f"twinmesh '{scene}' joined the lab at {join}, ready: {len(things)} Things, {where}  (Ctrl-C to stop)")
+    sys.exit(sup.run_until_stopped())
+
+
+def _until_ready(sup: Supervisor, settings: MeshSettings, things: list[str], timeout: float, died: str, failed: str,
+                 **wait: Any) -> None:
+    """Wait until the lab's Things answer, saying meanwhile what it waits for; a part that dies, or a
+    timeout, stops the lab with one line (`died`, `failed` end it); Ctrl-C meanwhile is a clean exit."""
+    from devices.lab.readiness import LabDied, wait_ready
+
     try:
-        wait_ready(lab, lambda: _lab_client(lab), things, max(JOIN_READY_TIMEOUT, _ready_timeout(things)),
+        wait_ready(settings, lambda: _lab_client(settings), things, timeout,
                    alive=lambda: "stopped" if sup.stop.is_set() else sup.dead(),
-                   progress=lambda text: click.echo(f"twinmesh up: {text}", err=True), follow=False)
+                   progress=lambda text: click.echo(f"twinmesh up: {text}", err=True), **wait)
     except LabDied as e:
         sup.shutdown()
         if e.detail == "stopped":
             sys.exit(0)
-        raise click.ClickException(f"{e.detail} while joining the lab (its log is above); stopped") from None
+        raise click.ClickException(f"{e.detail} {died}") from None
     except Problem as e:
         sup.shutdown()
-        raise click.ClickException(f"{e.detail} (is the lab at {join} running and listening there?); stopped") \
-            from None
-    where = f"this host's router on {', '.join(listen)}" if listen else "linked straight to the lab's router"
-    click.echo(f"twinmesh '{scene}' joined the lab at {join}, ready: {len(things)} Things, {where}  (Ctrl-C to stop)")
-    sys.exit(sup.run_until_stopped())
+        raise click.ClickException(f"{e.detail}{failed}") from None
 
 
 @contextmanager

@@ -29,6 +29,13 @@ STOPPED = "Conveyor belt stopped"
 _DIRECTIONS = {1: "forward", -1: "backward", 0: "stopped"}
 
 
+
+def belt_speed(belt: str, value: object) -> int:
+    """A belt's speed as the real lab's TD allows it: an integer from 1 to 100 (%)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value) or not 1 <= value <= 100:
+        raise BadInput(f"{belt}: speed must be an integer from 1 to 100 (%), got {value!r}")
+    return int(value)
+
 class Belt:
     """One belt: `start_forward`, `start_backward`, `stop`, `speed` (1..100 %), thread-safe.
 
@@ -75,11 +82,9 @@ class Belt:
 
     @speed.setter
     def speed(self, value: int) -> None:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value) \
-                or not 1 <= value <= 100:
-            raise BadInput(f"{self.name}: speed must be an integer from 1 to 100 (%), got {value!r}")
+        speed = belt_speed(self.name, value)
         with self._lock:
-            self._speed = int(value)
+            self._speed = speed
 
     @property
     def direction(self) -> str:

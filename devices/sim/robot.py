@@ -53,7 +53,7 @@ from tdgen.robot.ik import solve, solve_many
 from tdgen.robot.kinematics import ForwardKinematics
 from tdgen.robot.model import Robot
 from tdgen.robot.pose_ik import rotation_of, solve_pose
-from tdgen.robot.surroundings import RobotPlacement, Scene, empty_scene
+from tdgen.robot.surroundings import RobotPlacement, Surroundings, empty_scene
 from tdgen.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM, Workspace
 
 IK_SEEDS = 24       # IK runs per Cartesian target: from the current configuration and from random starts
@@ -109,7 +109,7 @@ class Base:
         return cls(p.position, p.yaw, p.roll, p.pitch)
 
 
-def placed(scene: Scene | None, base: Base) -> Scene:
+def placed(scene: Surroundings | None, base: Base) -> Surroundings:
     """The scene with the robot standing at `base` (a scene's own `robot` placement is replaced)."""
     scene = scene or empty_scene()
     return msgspec.structs.replace(scene, robot=base.placement)
@@ -185,7 +185,7 @@ class MovePlan:
 class RobotTwin:
     """One robot arm in a World. Thread-safe: moves run one at a time, reads never wait for them."""
 
-    def __init__(self, world: World, robot: Robot, name: str, base: Base = Base(), scene: Scene | None = None, *,
+    def __init__(self, world: World, robot: Robot, name: str, base: Base = Base(), scene: Surroundings | None = None, *,
                  calibration: Calibration | None = None,
                  max_collision_probability: float | None = None, k: int = DEFAULT_K,
                  radius_mm: float = DEFAULT_RADIUS_MM, home: Vec | None = None,
@@ -284,7 +284,7 @@ class RobotTwin:
         return self.frame.from_base(self.fk.positions(q) * 1000.0)
 
     @property
-    def scene(self) -> Scene:
+    def scene(self) -> Surroundings:
         return self._scene
 
     @property
@@ -309,10 +309,10 @@ class RobotTwin:
         if self._workspace is None and not self.workspace_error and self.workspace_wait > 0:
             self._workspace_settled.wait(self.workspace_wait)
 
-    def set_scene(self, scene: Scene | Mapping[str, Any]) -> int:
+    def set_scene(self, scene: Surroundings | Mapping[str, Any]) -> int:
         """New surroundings (the robot keeps its base): bump `version`, tell the listeners. Returns it."""
         try:  # a plain, checked copy (numpy numbers from the caller's geometry included)
-            scene = msgspec.json.decode(msgspec.json.encode(scene, enc_hook=_plain), type=Scene)
+            scene = msgspec.json.decode(msgspec.json.encode(scene, enc_hook=_plain), type=Surroundings)
         except (msgspec.ValidationError, msgspec.DecodeError, TypeError) as e:
             raise BadInput(f"{self.name}: not a scene ({e})") from None
         with self._scene_lock:
@@ -326,7 +326,7 @@ class RobotTwin:
             listener(version)
         return version
 
-    def collides_in(self, scene: Scene) -> bool:
+    def collides_in(self, scene: Surroundings) -> bool:
         """Whether the robot, where it stands now, would collide in `scene` (e.g. with a box about to be added)."""
         world = CollisionWorld(self.robot, placed(scene, self.base))
         try:

@@ -11,12 +11,12 @@ the sensor's 1000..20000 K (6500 K, the LED itself, when nothing is there).
 """
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 from typing import Callable
 
 import pybullet as pb
 
+from devices.sim.listeners import Listeners
 from devices.sim.vec import Vec
 from devices.sim.world import Snapshot, World, static_box
 
@@ -38,8 +38,7 @@ class InfraredSensor:
         self.release = release
         self._clear_for = 0.0
         self._presence = False
-        self._callbacks: list[Callable[[bool], None]] = []
-        self._lock = threading.Lock()
+        self._listeners: Listeners[bool] = Listeners()
         self.body = static_box(world.client, [0.008, 0.008, 0.012],
                                [ray_from[0], ray_from[1], ray_from[2]], rgba=(0.1, 0.1, 0.1, 1), collide=False)
         world.add_post_step(self._sense)
@@ -51,14 +50,7 @@ class InfraredSensor:
 
     def on_change(self, callback: Callable[[bool], None]) -> Callable[[], None]:
         """`callback(presence)` on the world's notifier thread at each change; returns an unsubscribe."""
-        with self._lock:
-            self._callbacks.append(callback)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if callback in self._callbacks:
-                    self._callbacks.remove(callback)
-        return unsubscribe
+        return self._listeners.add(callback)
 
     def refresh(self) -> None:
         """Take the beam's state at once, without waiting out `release` (after a scene reset; stepping thread)."""
@@ -71,9 +63,7 @@ class InfraredSensor:
         present = hit or (self._presence and self._clear_for < self.release)
         if present != self._presence:
             self._presence = present
-            with self._lock:
-                callbacks = list(self._callbacks)
-            for cb in callbacks:
+            for cb in self._listeners.now():
                 self.world.notify(cb, present)
 
     def _fill(self, snap: Snapshot) -> None:

@@ -20,7 +20,8 @@ import threading
 import time
 from typing import Callable
 
-from devices.sim.belt import DEFAULT_SPEED, MAX_SPEED_MM_S, STARTED, STOPPED
+from devices.sim.belt import DEFAULT_SPEED, MAX_SPEED_MM_S, STARTED, STOPPED, belt_speed
+from devices.sim.listeners import Listeners
 from devices.sim.sensors import NO_OBJECT, ColorReading, reading_of
 from mesh.wot.problem import BadInput
 
@@ -91,8 +92,7 @@ class Station:
         self._position = offset_mm % SPACING_MM  # of the parcel train, relative to the beam
         self._presence = False
         self._parcel = 0  # the parcel at (or last at) the beam: its colour
-        self._callbacks: list[Callable[[bool], None]] = []
-        self._lock = threading.Lock()
+        self._listeners: Listeners[bool] = Listeners()
         self.belt = self  # the interfaces the lab's bindings expect
         self.infrared = _Beam(self)
         self.color_sensor = _Colour(self)
@@ -117,10 +117,7 @@ class Station:
 
     @speed.setter
     def speed(self, value: int) -> None:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value) \
-                or not 1 <= value <= 100:
-            raise BadInput(f"{self.name}: speed must be an integer from 1 to 100 (%), got {value!r}")
-        self._speed = int(value)
+        self._speed = belt_speed(self.name, value)
 
     @property
     def running(self) -> bool:
@@ -136,9 +133,7 @@ class Station:
             self._parcel = int(self._position // SPACING_MM)
         if present != self._presence:
             self._presence = present
-            with self._lock:
-                callbacks = list(self._callbacks)
-            for cb in callbacks:
+            for cb in self._listeners.now():
                 cb(present)
 
     def reading(self) -> ColorReading:
@@ -158,15 +153,7 @@ class _Beam:
         return self._station._presence
 
     def on_change(self, callback: Callable[[bool], None]) -> Callable[[], None]:
-        s = self._station
-        with s._lock:
-            s._callbacks.append(callback)
-
-        def unsubscribe() -> None:
-            with s._lock:
-                if callback in s._callbacks:
-                    s._callbacks.remove(callback)
-        return unsubscribe
+        return self._station._listeners.add(callback)
 
 
 class _Colour:

@@ -40,9 +40,9 @@ from mesh.messages.scene import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, 
 from mesh.recorder import mapping
 from mesh.recorder.robots import (
     JOINTS_PROPERTY,
+    DrawnWorkspace,
     RobotDrawer,
     RobotFiles,
-    Workspace,
     WorkspaceFiles,
     is_robot,
     read_robot,
@@ -65,7 +65,7 @@ CLOSING_GRACE = 0.25  # s of listening after a stop, for publications still in f
 class Message(NamedTuple):
     """A queued message: a Zenoh sample (`key` is its key expression), a join/leave/notice, the
     scene a world Thing describes (`key` is its name, `payload` a JSON `SceneFiles`), or what a robot
-    Thing links (`payload` a `RobotFiles` or a parsed `Workspace`)."""
+    Thing links (`payload` a `RobotFiles` or a parsed `DrawnWorkspace`)."""
 
     kind: str  # "sample" | "join" | "leave" | "notice" | "scene" | "robot" | "workspace"
     key: str  # the sample's key; the Thing's name for join/leave/scene/robot/workspace
@@ -405,7 +405,7 @@ class _Writer(threading.Thread):
             self.send_layout()
             return True
         if message.kind == "workspace":
-            assert isinstance(message.payload, Workspace)
+            assert isinstance(message.payload, DrawnWorkspace)
             entries = self.robots.draw_workspace(message.payload)
             self.stamp(message)
             self.log_entries(entries)

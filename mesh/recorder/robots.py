@@ -4,7 +4,7 @@ A robot Thing (`mesh.messages.scene.TwinDescription`) links `twin.json` (`relati
 in the scene frame, its frame and calibration) and its URDF (`rel: "describedby"`); once its workspace is
 generated, also the sampled points (`relations.POINTS`, CSV `x,y,z,collision,<joints>`) and the
 hull (`relations.WORKSPACE`, STL), both in mm in the robot's base frame. The recorder's fetcher thread
-fetches and parses them (`RobotFiles`, `Workspace.from_files`); `RobotDrawer`, owned by the writer
+fetches and parses them (`RobotFiles`, `DrawnWorkspace.from_files`); `RobotDrawer`, owned by the writer
 thread, draws them into the RecordingStream.
 
 Entities of robot Thing `r` (its links are the frames `r/<link>`, as for the world's robots):
@@ -41,7 +41,7 @@ import rerun as rr
 from mesh.messages import relations
 from mesh.messages.scene import MODEL_REL, TWIN_FILE, TWIN_REL, Pose, TwinDescription
 from mesh.recorder.mapping import Entry
-from mesh.recorder.scene import BATCH_AGE, BATCH_ROWS, WORLD, Robot, SampleBatch, SceneDrawer, thing_robot_path
+from mesh.recorder.scene import BATCH_AGE, BATCH_ROWS, WORLD, DrawnRobot, SampleBatch, SceneDrawer, thing_robot_path
 from mesh.wot import units
 from mesh.wot.td import ThingDescription
 
@@ -105,7 +105,7 @@ class RobotFiles:
 
 
 @dataclass
-class Workspace:
+class DrawnWorkspace:
     """A robot's sampled points and hull, in m in its base frame (twin frame)."""
 
     thing: str
@@ -116,7 +116,7 @@ class Workspace:
     normals: np.ndarray  # (V, 3) float32
 
     @classmethod
-    def from_files(cls, thing: str, csv: bytes, stl: bytes, twin: TwinDescription) -> "Workspace":
+    def from_files(cls, thing: str, csv: bytes, stl: bytes, twin: TwinDescription) -> "DrawnWorkspace":
         xyz, colliding = read_points(csv)
         vertices, triangles, normals = read_hull(stl)
         if twin.frame == "real":  # the TD's files are in the real robot's frame: back to the twin's
@@ -147,7 +147,7 @@ class WorkspaceFiles:
         self._digests: dict[str, str] = {}  # robot -> digest of what was read last
 
     def read(self, thing: str, td: ThingDescription, twin: TwinDescription,
-             get: Callable[[str], bytes]) -> Workspace | None:
+             get: Callable[[str], bytes]) -> DrawnWorkspace | None:
         """The workspace the TD links; None when it links none or the files have not changed."""
         points, hull = link_file(td, POINTS_REL), link_file(td, WORKSPACE_REL)
         if points is None or hull is None:
@@ -158,7 +158,7 @@ class WorkspaceFiles:
             h.update(len(part).to_bytes(8, "little") + part)
         if self._digests.get(thing) == h.hexdigest():
             return None
-        workspace = Workspace.from_files(thing, csv, stl, twin)
+        workspace = DrawnWorkspace.from_files(thing, csv, stl, twin)
         self._digests[thing] = h.hexdigest()
         return workspace
 
@@ -211,9 +211,9 @@ def to_twin_frame(points: np.ndarray, twin: TwinDescription) -> np.ndarray:
 class _RobotThing:
     files: RobotFiles | None = None
     units: dict[str, tuple[float, str]] = field(default_factory=dict)
-    robot: Robot | None = None  # its own drawing; None when the world draws it (or not drawn yet)
+    robot: DrawnRobot | None = None  # its own drawing; None when the world draws it (or not drawn yet)
     host: str | None = None  # the world's robot of the same name, which draws it
-    workspace: Workspace | None = None
+    workspace: DrawnWorkspace | None = None
     frame: str | None = None  # the base frame the workspace was logged in
 
 
@@ -266,7 +266,7 @@ class RobotDrawer:
             t.robot = None
         elif host is None and t.files is not None and (t.robot is None or redraw):
             try:
-                robot = Robot.load(name, t.files.urdf, thing_robot_path(name, "model"), urdf_dir(t.files.twin))
+                robot = DrawnRobot.load(name, t.files.urdf, thing_robot_path(name, "model"), urdf_dir(t.files.twin))
             except Exception as e:  # a bad URDF: the joint series and the log still record
                 problems.append(f"cannot draw robot {name} from {t.files.twin.urdf_file}: {e}")
             else:
@@ -281,7 +281,7 @@ class RobotDrawer:
             self._log_frames(name, t)
         return problems
 
-    def _urdf(self, t: _RobotThing) -> Robot | None:
+    def _urdf(self, t: _RobotThing) -> DrawnRobot | None:
         return self.scene.robots.get(t.host) if t.host is not None else t.robot
 
     def _frame(self, t: _RobotThing) -> str | None:
@@ -289,7 +289,7 @@ class RobotDrawer:
         return robot.base_frame if robot is not None else None
 
     # --- the workspace (static) ----------------------------------------------------------------
-    def draw_workspace(self, ws: Workspace) -> list[Entry]:
+    def draw_workspace(self, ws: DrawnWorkspace) -> list[Entry]:
         """Points (free and colliding apart) and hull in the robot's base frame; returns a log line."""
         name = ws.thing
         t = self.things.setdefault(name, _RobotThing())

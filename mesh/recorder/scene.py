@@ -5,7 +5,7 @@ URDFs) and, in its `poses` property, where everything is at each instant of simu
 `SceneDrawer` turns both into Rerun data. It is owned by the recorder's writer thread and writes to
 its RecordingStream. Poses may come fast (a world at `--speed max`), and one `log` call per value
 costs about 2 ms a sample, so joint values and body poses are kept in per-entity batches and
-written with `send_columns` a few times a second (about 0.1 ms a sample). `Robot` (a URDF drawn
+written with `send_columns` a few times a second (about 0.1 ms a sample). `DrawnRobot` (a URDF drawn
 under an entity, placed by its base, its joints animated) is shared with `mesh.recorder.robots`, which
 draws the robot Things of the lab; `lab_blueprint` lays out both, so a recording opens on the lab in
 3D beside its joint plots and its log.
@@ -85,7 +85,7 @@ def thing_robot_path(robot: str, *parts: str) -> str:
 
 # --- robots --------------------------------------------------------------------------------------
 @dataclass
-class Robot:
+class DrawnRobot:
     """A robot as drawn: its URDF tree under the entity `root` (frames prefixed `<name>/`), its moving joints."""
 
     name: str
@@ -96,7 +96,7 @@ class Robot:
     missing: list[str]  # mesh files that could not be found: those links are drawn as frames only
 
     @classmethod
-    def load(cls, name: str, urdf: str, root: str, urdf_dir: Path | None) -> "Robot":
+    def load(cls, name: str, urdf: str, root: str, urdf_dir: Path | None) -> "DrawnRobot":
         """`urdf_dir`: where the URDF lives on this machine (as its Thing says), so that its meshes
         (`package://`, relative) are found; the text itself came over the mesh."""
         urdf, missing = with_absolute_meshes(urdf, urdf_dir)
@@ -184,7 +184,7 @@ class SceneDrawer:
     def __init__(self, rec, batch_rows: int = BATCH_ROWS, batch_age: float = BATCH_AGE):
         self.rec = rec
         self.batch_rows, self.batch_age = batch_rows, batch_age
-        self.robots: dict[str, Robot] = {}
+        self.robots: dict[str, DrawnRobot] = {}
         self.bodies: dict[str, Body] = {}
         self.sim_time: float | None = None  # the latest simulated time seen
         self._scene: SceneFiles | None = None
@@ -225,7 +225,7 @@ class SceneDrawer:
         return self._scene.scene if self._scene is not None else None
 
     def _draw_robot(self, model: RobotModel, urdf: str) -> None:
-        robot = Robot.load(model.name, urdf, robot_path(model.name),
+        robot = DrawnRobot.load(model.name, urdf, robot_path(model.name),
                            Path(model.urdf_dir) if model.urdf_dir else None)
         robot.draw(self.rec, model.base)
         self.robots[model.name] = robot

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from tdgen.robot.model import Robot
-from tdgen.robot.surroundings import Scene, build_into
+from tdgen.robot.surroundings import Surroundings, build_into
 
 CONTACT_TOLERANCE = 1e-4  # m: contacts shallower than this are touching, not colliding
 
@@ -23,7 +23,7 @@ CONTACT_TOLERANCE = 1e-4  # m: contacts shallower than this are touching, not co
 class CollisionWorld:
     """One pybullet DIRECT client with the scene and the robot: answers "does q collide?"."""
 
-    def __init__(self, robot: Robot, scene: Scene):
+    def __init__(self, robot: Robot, scene: Surroundings):
         import pybullet as pb
 
         self._pb = pb

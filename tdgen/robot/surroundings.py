@@ -102,22 +102,22 @@ class CylinderBody(_Body, tag="cylinder"):
 Body = Union[UrdfBody, BoxBody, CylinderBody]
 
 
-class Scene(msgspec.Struct, forbid_unknown_fields=True):
+class Surroundings(msgspec.Struct, forbid_unknown_fields=True):
     name: str
     description: str = ""
     robot: RobotPlacement = msgspec.field(default_factory=RobotPlacement)
     bodies: list[Body] = []
 
 
-def empty_scene() -> Scene:
+def empty_scene() -> Surroundings:
     """The robot alone at the world origin: only self-collision counts."""
-    return Scene(name="empty", description="The robot alone; only self-collision is checked.")
+    return Surroundings(name="empty", description="The robot alone; only self-collision is checked.")
 
 
 MOUNT_SIZE, MOUNT_THICKNESS = 4.0, 0.02  # m
 
 
-def default_scene(robot: RobotPlacement | None = None, surface: bool = True) -> Scene:
+def default_scene(robot: RobotPlacement | None = None, surface: bool = True) -> Surroundings:
     """The robot where it is placed, on the surface it is mounted on (a floor for an upright arm, the
     wall or the ceiling for a tilted one: a slab through the base, across the base's z axis), unless
     `surface` is False (the robot alone)."""
@@ -130,7 +130,7 @@ def default_scene(robot: RobotPlacement | None = None, surface: bool = True) -> 
     centre = tuple(float(p + d) for p, d in zip(robot.position, down))
     slab = BoxBody(name="mounting-surface", size=(MOUNT_SIZE, MOUNT_SIZE, MOUNT_THICKNESS), position=centre,  # type: ignore[arg-type]
                    rpy=robot.rpy, rgba=(0.55, 0.55, 0.55, 1.0))
-    return Scene(name="mounted", robot=robot, bodies=[slab],
+    return Surroundings(name="mounted", robot=robot, bodies=[slab],
                  description="The robot on the surface it is mounted on (a 4 m slab through its base, across its "
                              "z axis: the floor for an upright arm); self-collision and that surface are checked.")
 
@@ -145,7 +145,7 @@ def scene_file(name_or_path: str | Path) -> Path:
     raise SceneError(f"{name_or_path}: scene file not found (shipped scenes: {shipped})")
 
 
-def load_scene(name_or_path: str | Path, robot: str | None = None) -> Scene:
+def load_scene(name_or_path: str | Path, robot: str | None = None) -> Surroundings:
     """Read and check a scene file; file URDF paths come back absolute so the scene is self-contained.
 
     A world Thing's `scene.json` (mesh.messages.scene.SceneDescription: `robots` and `bodies`
@@ -167,7 +167,7 @@ def load_scene(name_or_path: str | Path, robot: str | None = None) -> Scene:
     if robot is not None:
         raise SceneError(f"{path}: a tdgen scene places one robot; --scene-robot is for a world's scene.json")
     try:
-        scene = msgspec.convert(raw, Scene)
+        scene = msgspec.convert(raw, Surroundings)
     except msgspec.ValidationError as exc:
         raise SceneError(f"{path}: not a valid scene ({exc})") from None
     bodies = []
@@ -179,7 +179,7 @@ def load_scene(name_or_path: str | Path, robot: str | None = None) -> Scene:
     return msgspec.structs.replace(scene, bodies=bodies)
 
 
-def from_world_scene(description: SceneDescription, robot: str | None, source: str = "scene") -> Scene:
+def from_world_scene(description: SceneDescription, robot: str | None, source: str = "scene") -> Surroundings:
     """A world Thing's scene as tdgen surroundings: its static bodies (virtual ones such as a safety
     wall included), with robot `robot` (the only one, if None) standing where the world puts it.
     Moving bodies (cubes) and the scene's other robots are left out: they are not surroundings."""
@@ -204,7 +204,7 @@ def from_world_scene(description: SceneDescription, robot: str | None, source: s
             size = tuple(b.size) if b.shape == "box" else (2 * b.size[0],) * 3
             bodies.append(BoxBody(size=size, **common))  # type: ignore[arg-type]
     placement = RobotPlacement.from_quaternion(tuple(model.base.p), tuple(model.base.q))  # type: ignore[arg-type]
-    return Scene(name=f"{description.name}:{model.name}", robot=placement, bodies=bodies,
+    return Surroundings(name=f"{description.name}:{model.name}", robot=placement, bodies=bodies,
                  description=f"The static bodies of {description.name} ({source}), {model.name} standing where it "
                              "does there.")
 
@@ -231,7 +231,7 @@ def urdf_path(urdf: str, base_dir: Path) -> Path:
     return base_dir / urdf
 
 
-def encode_scene(scene: Scene) -> bytes:
+def encode_scene(scene: Surroundings) -> bytes:
     """The scene as JSON, one body per line (what tdgen writes beside the TD; diff-friendly)."""
     enc = msgspec.json.encode
     head = [b'  "%s": %s' % (k.encode(), enc(getattr(scene, k))) for k in ("name", "description", "robot")]
@@ -239,7 +239,7 @@ def encode_scene(scene: Scene) -> bytes:
     return b"{\n" + b",\n".join(head) + b',\n  "bodies": [\n' + bodies + b"\n  ]\n}\n"
 
 
-def build_into(scene: Scene, client: int) -> list[int]:
+def build_into(scene: Surroundings, client: int) -> list[int]:
     """Create the scene's static bodies in pybullet client `client`; returns their body ids."""
     import pybullet as pb
 
@@ -267,7 +267,7 @@ def build_into(scene: Scene, client: int) -> list[int]:
     return ids
 
 
-def cluttered_lab(shelves: int = 2, levels: int = 4, items_per_level: int = 8) -> Scene:
+def cluttered_lab(shelves: int = 2, levels: int = 4, items_per_level: int = 8) -> Surroundings:
     """A robot on a table between shelves full of boxes and tins: many static bodies, for benchmarks.
 
     The default has 2 + shelves * (2 + levels * (1 + items_per_level)) = 78 bodies, all within a
@@ -300,6 +300,6 @@ def cluttered_lab(shelves: int = 2, levels: int = 4, items_per_level: int = 8) -
                 else:
                     bodies.append(BoxBody(name=name, size=(0.1, 0.08, 0.15), position=at(0.85, y, z + 0.085),
                                           rpy=(0.0, 0.0, yaw), rgba=(0.3, 0.5, 0.8, 1.0)))
-    return Scene(name="cluttered-lab", robot=RobotPlacement(position=(0.0, 0.0, 0.75)), bodies=bodies,
+    return Surroundings(name="cluttered-lab", robot=RobotPlacement(position=(0.0, 0.0, 0.75)), bodies=bodies,
                  description=f"A robot on a table between {shelves} shelves of boxes and tins "
                              f"({len(bodies)} static bodies); the benchmark scene.")

@@ -39,7 +39,7 @@ from mesh.wot.problem import Problem  # noqa: E402
 from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.ik import solve, solve_many  # noqa: E402
 from tdgen.robot.model import Robot  # noqa: E402
-from tdgen.robot.surroundings import Scene, build_into, load_scene  # noqa: E402
+from tdgen.robot.surroundings import Surroundings, build_into, load_scene  # noqa: E402
 from tdgen.robot.workspace_check import Workspace  # noqa: E402
 from tdgen.sampling import sample_workspace  # noqa: E402
 
@@ -48,7 +48,7 @@ from tdgen.sampling import sample_workspace  # noqa: E402
 class Case:
     name: str
     urdf: str
-    scene: Scene
+    scene: Surroundings
     base: Base
 
 

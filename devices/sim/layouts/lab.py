@@ -1,6 +1,6 @@
 """Scene `iot-lab`: the whole room in one pybullet world, around the `iot-platform` table.
 
-Scene frame (m): the floor at z = 0, the iot-platform table centred on the origin exactly as in
+Surroundings frame (m): the floor at z = 0, the iot-platform table centred on the origin exactly as in
 its own scene (so the uArm frame and every coordinate of the cube workflow are unchanged). Seen
 from above, with x to the right and y up:
 
@@ -35,7 +35,7 @@ from devices.sim.world import DEFAULT_DT, Snapshot, World, body_pose, static_box
 from mesh.messages.scene import Body, RobotModel, SceneDescription
 from mesh.wot.problem import Refused
 from tdgen.robot.model import Robot
-from tdgen.robot.surroundings import BoxBody, Scene, build_into
+from tdgen.robot.surroundings import BoxBody, Surroundings, build_into
 
 TABLE_TOP = 0.75
 OFF_RGB = (0.35, 0.35, 0.35)
@@ -68,11 +68,11 @@ class LabLayout:
 LAB = LabLayout()
 
 
-def robot_scene(layout: LabLayout = LAB) -> Scene:
+def robot_scene(layout: LabLayout = LAB) -> Surroundings:
     """The UR10's static surroundings (tdgen scene format): floor, its table, the safety wall."""
     (x0, x1), (y0, y1) = layout.room_x, layout.room_y
     tx, ty, sx, sy = layout.ur10_table
-    return Scene(
+    return Surroundings(
         name="iot-lab-ur10",
         description="The UR10's corner of the iot-lab: the floor, its table (a solid stand, top at 0.75 m) and the "
                     f"virtual safety wall at x = {layout.safety_wall_x} m between it and the other tables.",
@@ -197,10 +197,10 @@ class IotLab:
     def obstacles(self) -> list[Obstacle]:
         return [o for o, _ in self._obstacles.values()]
 
-    def robot_scene(self) -> Scene:
+    def robot_scene(self) -> Surroundings:
         """The UR10's scene now: its static surroundings and every obstacle."""
         bodies = [*self._base_scene.bodies, *(scene_body(o) for o, _ in self._obstacles.values())]
-        return Scene(name=self._base_scene.name, description=self._base_scene.description, bodies=bodies)
+        return Surroundings(name=self._base_scene.name, description=self._base_scene.description, bodies=bodies)
 
     def add_obstacle(self, obstacle: Obstacle) -> None:
         """Build the box into the world and the UR10's scene; refused if the name is taken or it hits the UR10."""
