@@ -59,11 +59,8 @@ def meshes_fingerprint(urdf: Path, packages: dict[str, str]) -> str:
     beside an unchanged URDF changes the collisions, so it changes the key."""
     h = hashlib.sha256()
     text = urdf.read_text(errors="replace")
-    found = {}
-    for m in MESH_FILENAME.finditer(text):
-        uri = m.group(3)
-        path, _ = resolve_uri(uri, urdf.parent, {k: Path(v) for k, v in packages.items()})
-        found[uri] = path
+    dirs = {k: Path(v) for k, v in packages.items()}
+    found = {m.group(3): resolve_uri(m.group(3), urdf.parent, dirs)[0] for m in MESH_FILENAME.finditer(text)}
     for uri, path in sorted(found.items()):
         h.update(uri.encode() + b"\0")
         h.update(path.read_bytes() if path is not None else b"<missing>")
