@@ -52,6 +52,10 @@ class Lab:
         return subprocess.run(twinmesh_cmd(self.endpoint, *self.options, *args), capture_output=True, text=True,
                               timeout=timeout, check=check, cwd=REPO)
 
+    def cli_args(self, *args: str) -> list[str]:
+        """The command line of a `twinmesh` command against this lab (to start it yourself)."""
+        return twinmesh_cmd(self.endpoint, *self.options, *args)
+
     def spawn(self, *args: str, log: Path | None = None) -> subprocess.Popen:
         """Start another long-running twinmesh process (a device, a recorder) on this lab's mesh."""
         out = open(log, "wb") if log else subprocess.DEVNULL

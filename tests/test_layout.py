@@ -12,7 +12,7 @@ REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ["mesh", "tdgen", "devices"]  # lower to higher
 # each package's parts, lower to higher: a part imports only parts before it (and itself)
 PARTS = {
-    "mesh": ["wot", "messages", "urdf_resources", "process", "fabric", "http", "recorder", "__init__", "cli"],
+    "mesh": ["wot", "messages", "urdf_resources", "process", "fabric", "http", "bridge", "recorder", "__init__", "cli"],
     "tdgen": ["robot", "cache", "sampling", "td", "generate", "service", "__init__", "cli"],
     "devices": ["planning", "sim", "things", "apps", "lab", "cli", "__main__", "__init__"],
 }

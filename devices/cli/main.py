@@ -403,5 +403,5 @@ def plan(settings: MeshSettings, thing: str, xyz: tuple[float, ...], joints: str
 
 
 for _command in (commands.router, commands.adapter, commands.record, commands.things, commands.td, commands.read,
-                 commands.write, commands.invoke, commands.observe, commands.subscribe):
+                 commands.write, commands.invoke, commands.observe, commands.subscribe, commands.bridge):
     main.add_command(_command)

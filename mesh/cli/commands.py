@@ -197,3 +197,68 @@ def observe(settings: MeshSettings, thing: str, prop: str, count: int | None) ->
 def subscribe(settings: MeshSettings, thing: str, event: str, count: int | None) -> None:
     """Print each event (one JSON value per line) until Ctrl-C."""
     _follow(settings, "subscribe", thing, event, count)
+
+
+# --- remote Things on the mesh -----------------------------------------------------------------
+
+
+def remote_access(auth: str | None, ca: str | None, insecure: bool) -> Any:
+    """The bridge's `Access` from its options: credentials checked early, certificate checks explicit."""
+    from mesh.bridge.run import Access
+
+    if ca and insecure:
+        raise click.UsageError("--ca and --insecure contradict each other: give one")
+    if insecure:
+        click.echo("WARNING: --insecure: the remote Things' TLS certificates are NOT checked; anyone between "
+                   "here and them can read the credentials and forge their answers", err=True)
+    return Access(auth=checked_auth(auth), verify=False if insecure else (ca or True))
+
+
+REMOTE_AUTH_HELP = "Credentials the remote Things want, sent with the TD fetch and every interaction: " \
+                   "basic:USER:PASS or bearer:TOKEN."
+CA_HELP = "Check the remote Things' TLS certificates against this CA file (a device with a self-signed " \
+          "certificate at a bare IP address)."
+INSECURE_HELP = "Do not check the remote Things' TLS certificates at all (says so on stderr)."
+
+
+@click.command()
+@click.argument("remotes", nargs=-1, required=True, metavar="NAME=URL...")
+@click.option("--auth", "auth", metavar="SCHEME:CREDENTIALS", envvar="TWINMESH_REMOTE_AUTH", help=REMOTE_AUTH_HELP)
+@click.option("--ca", type=click.Path(dir_okay=False, exists=True), help=CA_HELP)
+@click.option("--insecure", is_flag=True, help=INSECURE_HELP)
+@click.option("--poll", type=click.FloatRange(min=0), default=1.0, show_default=True, metavar="S",
+              help="Read the properties the remote TD offers no http observation for every S seconds and publish "
+                   "their changes (0: never).")
+@click.pass_obj
+def bridge(settings: MeshSettings, remotes: tuple[str, ...], auth: str | None, ca: str | None, insecure: bool,
+           poll: float) -> None:
+    """Put remote WoT Things on the mesh, each under its NAME, for as long as this runs: their TD is fetched
+    from URL and every property, action and event is driven through its own http(s) forms."""
+    from mesh.bridge.intake import IntakeError
+    from mesh.bridge.run import parse_remote, serve, take_in_all
+    from mesh.cli.exits import UNREACHABLE, CommandFailed, usage_exit
+
+    try:
+        parsed = [parse_remote(r) for r in remotes]
+    except ValueError as e:
+        raise usage_exit(str(e)) from None
+    access = remote_access(auth, ca, insecure)
+    client = access.client()
+    try:
+        found = take_in_all(parsed, client)
+    except IntakeError as e:
+        unreachable = "cannot connect" in str(e) or "no answer in time" in str(e)
+        raise CommandFailed(str(e), UNREACHABLE if unreachable else 2) from None
+    stop = install_stop_handlers()
+
+    def ready() -> None:
+        for remote, thing, _ in found:
+            click.echo(f"bridged {remote.name} ({thing.title}) from {remote.url}", err=True)
+        click.echo(f"bridge ready: {', '.join(r.name for r, _, _ in found)}")
+
+    try:
+        serve(settings, stop, found, poll=poll, ready=ready)
+    except IntakeError as e:
+        raise CommandFailed(str(e)) from None
+    finally:
+        client.close()

@@ -2,8 +2,10 @@
 servient, the real lab) for `mesh.wot.consumed`.
 
 Methods follow the form's `htv:methodName`, else the HTTP binding's defaults per op. Observations
-and events use SSE forms (`subprotocol: sse`); long-poll forms are left to clients that want them.
-Error answers become `Problem`s: problem+json as it came, anything else by its status code.
+and events use SSE forms (`subprotocol: sse`), and long-poll forms too for a client made with
+`longpoll=True` (the bridge: the real lab's sensors offer only those). Error answers become
+`Problem`s: problem+json as it came, anything else by its status code; a server that cannot be
+reached is 503 (Unavailable), one that answers nothing usable 502.
 """
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ import msgspec
 from mesh.http.credentials import parse_auth as parse_credentials
 from mesh.wot.consumed import NOTHING, Callback
 from mesh.wot.invocation import ActionStatus
-from mesh.wot.problem import BadGateway, Problem, TimedOut
+from mesh.wot.problem import BadGateway, Problem, TimedOut, Unavailable
 from mesh.wot.td import Form
 
 DEFAULT_METHODS = {"readproperty": "GET", "writeproperty": "PUT", "invokeaction": "POST",
@@ -43,16 +45,21 @@ def problem_of(r: httpx.Response) -> Problem:
 class HttpClient:
     """A `mesh.wot.consumed.ProtocolClient` over httpx, with one connection pool for every Thing."""
 
-    schemes = ("http", "https")
+    schemes: tuple[str, ...] = ("http", "https")
 
-    def __init__(self, auth: str | httpx.Auth | None = None, timeout: float = 10.0, action_timeout: float = 300.0):
+    def __init__(self, auth: str | httpx.Auth | None = None, timeout: float = 10.0, action_timeout: float = 300.0,
+                 verify: bool | str = True, longpoll: bool = False):
+        """`verify`: check server certificates (True), against a CA file (its path), or not at all (False:
+        say so loudly where you offer it). `longpoll`: also observe through long-poll forms."""
         self.http = httpx.Client(auth=parse_auth(auth) if isinstance(auth, str) or auth is None else auth,
-                                 timeout=httpx.Timeout(timeout), headers={"Accept": "application/json"})
+                                 timeout=httpx.Timeout(timeout), headers={"Accept": "application/json"},
+                                 verify=verify)
         self.action_timeout = action_timeout
+        self.longpoll = longpoll
 
     def accepts(self, form: Form, op: str) -> bool:
         if op in ("observeproperty", "subscribeevent"):
-            return form.subprotocol == "sse"
+            return form.subprotocol == "sse" or self.longpoll and form.subprotocol == "longpoll"
         return form.subprotocol is None
 
     def _send(self, form: Form, op: str, href: str | None = None, body: Any = NOTHING, timeout: float | None = None,
@@ -63,8 +70,12 @@ class HttpClient:
             kwargs["headers"] = {"Content-Type": form.contentType or "application/json"}
         try:
             r = self.http.request(method, href or form.href, timeout=timeout or httpx.USE_CLIENT_DEFAULT, **kwargs)
+        except httpx.ConnectTimeout as e:
+            raise Unavailable(f"{method} {href or form.href}: cannot connect ({e or 'timed out'})") from None
         except httpx.TimeoutException as e:
             raise TimedOut(f"{method} {href or form.href}: no answer in time ({e})") from None
+        except httpx.ConnectError as e:
+            raise Unavailable(f"{method} {href or form.href}: cannot connect ({e})") from None
         except httpx.HTTPError as e:
             raise BadGateway(f"{method} {href or form.href}: {e}") from None
         if r.status_code >= 400:
@@ -118,7 +129,9 @@ class HttpClient:
         found = self._json(self._send(form, "queryallactions")) or {}
         return {name: [_status(s) for s in statuses] for name, statuses in found.items()}
 
-    def observe(self, form: Form, callback: Callback) -> "SseSubscription":
+    def observe(self, form: Form, callback: Callback) -> "SseSubscription | LongPollSubscription":
+        if form.subprotocol == "longpoll":
+            return LongPollSubscription(self.http, form.href, callback)
         return SseSubscription(self.http, form.href, callback)
 
     def close(self) -> None:
@@ -184,6 +197,53 @@ class SseSubscription:
 
     def stop(self) -> None:
         """Shut the socket down so that the reading thread wakes up, and wait for it."""
+        self._stopping = True
+        stream = self._response.extensions.get("network_stream") if self._response is not None else None
+        sock = stream.get_extra_info("socket") if stream is not None else None
+        if sock is not None:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout=5)
+
+
+class LongPollSubscription:
+    """A long-poll observation (node-wot's `subprotocol: longpoll`): one GET after the other, each answered
+    with the next value, read by a thread. Registered once the constructor returns (the first GET is
+    sent; a long-poll server has no other sign of it). A failed GET is reported to the callback as a
+    `Problem`, once, and ends the subscription, as a broken SSE stream does."""
+
+    def __init__(self, http: httpx.Client, url: str, callback: Callback, timeout: float = 10.0):
+        self.url, self._callback = url, callback
+        self._stopping = False
+        self._response: httpx.Response | None = None
+        self._sent = threading.Event()
+        self._thread = threading.Thread(target=self._read, args=(http, timeout), name="longpoll", daemon=True)
+        self._thread.start()
+        self._sent.wait(timeout)
+
+    def _read(self, http: httpx.Client, timeout: float) -> None:
+        try:
+            while not self._stopping:
+                with http.stream("GET", self.url, timeout=httpx.Timeout(timeout, read=None)) as r:
+                    self._response = r
+                    self._sent.set()
+                    body = r.read()
+                    if self._stopping:
+                        return
+                    if r.status_code >= 400:
+                        raise problem_of(r)
+                    if body:
+                        self._callback(json.loads(body))
+        except Exception as e:
+            if not self._stopping:
+                self._callback(e if isinstance(e, Problem) else BadGateway(f"the long poll {self.url} broke: {e}"))
+        finally:
+            self._sent.set()
+
+    def stop(self) -> None:
         self._stopping = True
         stream = self._response.extensions.get("network_stream") if self._response is not None else None
         sock = stream.get_extra_info("socket") if stream is not None else None

@@ -215,3 +215,84 @@ def start_baseline_servient(port: int = 0, credentials: dict | None = None,
                     process.wait()
             for pipe in (process.stdin, process.stdout):
                 pipe.close()
+
+
+REAL_LAB = INTEROP_DIR / "real-lab.mjs"
+REAL_LAB_TDS = INTEROP_DIR.parent / "data" / "reference-tds" / "real-lab"
+
+
+class RealLab:
+    """A mock of the real lab (real-lab.mjs): node-wot servients exposing the real lab's TDs behind basic
+    authentication, with a request log. `kill()` and `start()` again keep its port, as a real device
+    that goes down and comes back at the same address."""
+
+    def __init__(self, credentials: dict | None = None, port: int = 0, ready_timeout: float = 30):
+        self.credentials, self.port, self.ready_timeout = credentials, port, ready_timeout
+        self.things: dict[str, str] = {}  # TD file name (Uarm, WarehouseDobot, ...) -> TD URL
+        self.process: subprocess.Popen | None = None
+        self._stderr = tempfile.TemporaryFile("w+")
+
+    def start(self) -> "RealLab":
+        ensure_node_modules()
+        command = [_node(), str(REAL_LAB), "--tds", str(REAL_LAB_TDS), "--port", str(self.port), "--exit-with-stdin"]
+        if self.credentials:
+            command += ["--basic", f"{self.credentials['username']}:{self.credentials['password']}"]
+        process = subprocess.Popen(command, cwd=INTEROP_DIR, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                   stderr=self._stderr, text=True)
+        lines: queue.Queue[str] = queue.Queue()
+        threading.Thread(target=lambda: lines.put(process.stdout.readline()), daemon=True).start()
+        try:
+            line = lines.get(timeout=self.ready_timeout)
+        except queue.Empty:
+            line = ""
+        ready = json.loads(line) if line.startswith("{") else {}
+        if not ready.get("ready"):
+            process.kill()
+            process.wait()
+            self._stderr.seek(0)
+            raise HarnessError(f"real-lab.mjs did not get ready in {self.ready_timeout} s (said {line!r})\n"
+                               f"--- stderr ---\n{_tail(self._stderr.read())}")
+        self.process, self.port, self.things = process, ready["port"], ready["things"]
+        return self
+
+    @property
+    def base(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def url(self, thing: str) -> str:
+        return self.things[thing]
+
+    def log(self) -> list[dict]:
+        """Every request received ({seq, method, path, authorized}) and handler call ({seq, thing, affordance,
+        input}), in order, since the last `clear_log` (or start)."""
+        import httpx
+
+        return httpx.get(f"{self.base}/_log", timeout=10).json()
+
+    def calls(self, thing: str | None = None, affordance: str | None = None) -> list[dict]:
+        return [e for e in self.log() if "affordance" in e and thing in (None, e["thing"])
+                and affordance in (None, e["affordance"])]
+
+    def requests(self) -> list[dict]:
+        return [e for e in self.log() if "method" in e]
+
+    def clear_log(self) -> None:
+        import httpx
+
+        httpx.delete(f"{self.base}/_log", timeout=10)
+
+    def kill(self) -> None:
+        process, self.process = self.process, None
+        if process is not None and process.poll() is None:
+            process.kill()
+            process.wait()
+        if process is not None:
+            for pipe in (process.stdin, process.stdout):
+                pipe.close()
+
+    def __enter__(self) -> "RealLab":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.kill()
+        self._stderr.close()
