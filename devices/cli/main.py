@@ -185,6 +185,17 @@ def _ready_timeout(things: list[str]) -> float:
               help="With --join: no router on this host; each device links straight to the lab's router "
                    "(for fleets of thousands: routers linked together each hold every device's keys). A cut "
                    "cable is then seen after 60 s instead of 1.5 s.")
+@click.option("--real", "real", multiple=True, metavar="DEVICE=URL",
+              help="Guard the real DEVICE whose TD is at URL with its twin (repeatable; iot-platform and iot-lab): "
+                   "every action is checked on the twin first and only then sent to the real device; the real "
+                   "device is also on the mesh as DEVICE-real.")
+@click.option("--real-auth", envvar="TWINMESH_REAL_AUTH", metavar="SCHEME:CREDENTIALS",
+              help="Credentials of the real devices: basic:USER:PASS or bearer:TOKEN.")
+@click.option("--real-ca", type=click.Path(dir_okay=False, exists=True), help=commands.CA_HELP)
+@click.option("--real-insecure", is_flag=True, help=commands.INSECURE_HELP)
+@click.option("--real-calibration", multiple=True, metavar="DEVICE=CSV",
+              help="Twin-to-real calibration pairs of a guarded device (twin_x,twin_y,twin_z,real_x,real_y,real_z "
+                   "in mm) [default: the identity].")
 @click.option("--outlive-parent", is_flag=True,
               help="Keep the lab running when the process that started `up` ends. Without it a lab started by a "
                    "script, a test or an editor stops when its starter dies, however it dies (a terminal's shell, "
@@ -193,7 +204,8 @@ def _ready_timeout(things: list[str]) -> float:
 def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, http: str, no_http: bool,
        auth: str | None, record: str | None, view: str, no_view: bool, speed: str, samples: int | None,
        tdgen_cache: str | None, fleet: int | None, fleet_first: int, join: str | None, direct: bool,
-       outlive_parent: bool) -> None:
+       real: tuple[str, ...], real_auth: str | None, real_ca: str | None, real_insecure: bool,
+       real_calibration: tuple[str, ...], outlive_parent: bool) -> None:
     """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
 
     Scenes: iot-lab (default), iot-platform, ur10, lights, fleet (--fleet N virtual devices for load tests).
@@ -223,6 +235,11 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
         things = scene_things(scene, fleet=fleet, fleet_first=fleet_first)
     except KeyError as e:
         raise usage_exit(str(e.args[0])) from None
+    if real:
+        things += _guard_real(specs, scene, real, commands.remote_access(real_auth, real_ca, real_insecure),
+                              real_calibration)
+    elif real_calibration or real_auth or real_ca or real_insecure:
+        raise usage_exit("--real-auth, --real-ca, --real-insecure and --real-calibration go with --real DEVICE=URL")
     if direct and not join:
         raise usage_exit("--direct is for --join ENDPOINT (this host's devices linked straight to that lab's router)")
     if zenoh_endpoint:
@@ -272,6 +289,53 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
         code = sup.run_until_stopped()
         queryable.undeclare()
     sys.exit(code)
+
+
+def _guard_real(specs: list[ProcessSpec], scene: str, real: tuple[str, ...], access: Any,
+                calibrations: tuple[str, ...]) -> list[str]:
+    """Take in every real device's TD (one that cannot be had starts nothing) and give them to the scene's
+    world process; the Things this adds to the lab (`<device>-real`)."""
+    from devices.things.guard import RealDevice
+    from devices.things.platform import PLATFORM_DEVICES
+    from mesh.bridge.intake import IntakeError
+    from mesh.bridge.run import parse_remote, take_in_all
+
+    world = [s for s in specs if s.name in ("iot-platform", "iot-lab")]
+    if not world:
+        raise usage_exit(f"--real is for the scenes with the iot-platform's devices (iot-platform, iot-lab), not {scene!r}")
+    try:
+        remotes = [parse_remote(r) for r in real]
+        pairs = dict(c.split("=", 1) for c in calibrations if "=" in c)
+    except ValueError as e:
+        raise usage_exit(f"--real: {e}") from None
+    if len(pairs) != len(calibrations):
+        raise usage_exit(f"--real-calibration takes DEVICE=CSV, not {[c for c in calibrations if '=' not in c][0]!r}")
+    for remote in remotes:
+        if remote.name not in PLATFORM_DEVICES:
+            raise usage_exit(f"--real {remote.name}: the guarded devices are {', '.join(PLATFORM_DEVICES)} (a robot "
+                             f"Thing such as ur10 cannot guard a real arm yet)")
+    unknown = sorted(set(pairs) - {r.name for r in remotes})
+    if unknown:
+        raise usage_exit(f"--real-calibration {unknown[0]}: no --real {unknown[0]}=URL to calibrate")
+    for device, path in pairs.items():
+        from tdgen.robot.calibration import CalibrationError, load_calibration
+
+        try:
+            load_calibration(path)
+        except (CalibrationError, OSError, ValueError) as e:
+            raise usage_exit(f"--real-calibration {device}={path}: {e}") from None
+    client = access.client()
+    try:
+        found = take_in_all(remotes, client)
+    except IntakeError as e:
+        unreachable = "cannot connect" in str(e) or "no answer in time" in str(e)
+        raise CommandFailed(f"--real: {e}", UNREACHABLE if unreachable else 2) from None
+    finally:
+        client.close()
+    devices = [RealDevice(remote.name, remote.url, td, pairs.get(remote.name)) for remote, _, td in found]
+    for spec in world:
+        spec.kwargs.update(real=devices, access=access)
+    return [f"{d.slug}-real" for d in devices]
 
 
 def _prepare_secrets(settings: MeshSettings, things: list[str], joining: bool) -> str | None:

@@ -9,24 +9,30 @@ from __future__ import annotations
 import logging
 import threading
 from contextlib import ExitStack
+from typing import TYPE_CHECKING, Sequence
 
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.scene import DEFAULT_SAMPLES
+
+if TYPE_CHECKING:
+    from devices.things.guard import RealDevice
+    from mesh.bridge.run import Access
 
 log = logging.getLogger(__name__)
 
 
 
 def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0,
-        samples: int = DEFAULT_SAMPLES) -> None:
+        samples: int = DEFAULT_SAMPLES, real: Sequence[RealDevice] = (), access: Access | None = None) -> None:
     """Serve the iot-lab's devices, the UR10 and the world until `stop` is set (speed None: as fast as possible).
 
     `samples`: random configurations the UR10's workspace is sampled with (fewer start faster).
+    `real`: the platform devices that guard their real devices, reached with `access` (`devices.things.guard`).
     """
     from devices.sim.layouts.lab import build_lab
+    from devices.things.guard import serve_platform
     from devices.things.lights import Light
     from devices.things.pan_tilt import expose_pan_tilt
-    from devices.things.platform import PLATFORM_DEVICES, expose_device
     from devices.things.robot import RobotThing
     from devices.things.world import WorldThing
     from mesh.fabric.session import open_session
@@ -34,11 +40,7 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
     lab = build_lab(speed=speed)
     with ExitStack() as stack:
         stack.callback(lab.close)  # runs last if anything below fails
-        for slug in PLATFORM_DEVICES:
-            session = stack.enter_context(open_session(settings, thing=slug))
-            thing, cleanup = expose_device(session, slug, lab.platform, settings.keys)
-            stack.enter_context(thing)
-            stack.callback(cleanup)
+        serve_platform(stack, settings, lab.platform, list(real), access, stop)
         for name, unit in lab.pan_tilts.items():
             session = stack.enter_context(open_session(settings, thing=name))
             thing, cleanup = expose_pan_tilt(session, name, unit, settings.keys)

@@ -11,31 +11,34 @@ from __future__ import annotations
 import logging
 import threading
 from contextlib import ExitStack
+from typing import TYPE_CHECKING, Sequence
 
 from mesh.fabric.settings import MeshSettings
+
+if TYPE_CHECKING:
+    from devices.things.guard import RealDevice
+    from mesh.bridge.run import Access
 
 log = logging.getLogger(__name__)
 
 
-def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0) -> None:
-    """Serve the iot-platform's devices and its world until `stop` is set (speed None: as fast as possible)."""
+def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0,
+        real: Sequence[RealDevice] = (), access: Access | None = None) -> None:
+    """Serve the iot-platform's devices and its world until `stop` is set (speed None: as fast as possible);
+    the devices in `real` guard their real devices (`devices.things.guard`), reached with `access`."""
     from devices.sim.layouts.platform import build_platform
-    from devices.things.platform import PLATFORM_DEVICES, expose_device
+    from devices.things.guard import serve_platform
     from devices.things.world import WorldThing
     from mesh.fabric.session import open_session
 
     platform = build_platform(speed=speed)
     with ExitStack() as stack:
         stack.callback(platform.close)  # runs last if anything below fails
-        for slug in PLATFORM_DEVICES:
-            session = stack.enter_context(open_session(settings, thing=slug))
-            thing, cleanup = expose_device(session, slug, platform, settings.keys)
-            stack.enter_context(thing)
-            stack.callback(cleanup)
+        serve_platform(stack, settings, platform, list(real), access, stop)
         session = stack.enter_context(open_session(settings, thing="world"))
         stack.enter_context(WorldThing(session, platform, settings.keys))
         stack.callback(platform.close)  # runs first on the way out: pending motions fail, handlers answer
-        log.info("iot-platform: %d devices and the world on the mesh (speed %s)", len(PLATFORM_DEVICES),
+        log.info("iot-platform: %d devices and the world on the mesh (speed %s)", len(platform.devices),
                  "max" if speed is None else f"{speed:g}")
         platform.world.on_death(stop.set)  # a dead simulation ends the process: the supervisor sees it
         stop.wait()

@@ -179,15 +179,19 @@ class Dobot:
         return self._held
 
     # --- actions --------------------------------------------------------------------------------
+    def check_get_cube(self) -> None:
+        """What `get_cube` refuses, without moving: an empty warehouse, a cube already on the belt."""
+        if not self.warehouse.queue:
+            raise EmptyWarehouse("The warehouse is empty: there is no cube to get. Return a cube first "
+                                 "(returnCube) or reset the platform.", reason="empty-warehouse")
+        if self.world.run(lambda: self._cube_near(self.drop_point)) is not None:
+            raise DobotRefused("There is already a cube at the start of conveyor belt 2: run the belt "
+                               "forward first.", reason="belt-occupied")
+
     def get_cube(self) -> Cube:
         """The first cube of the queue onto the start of the right belt; the queue moves up."""
         with self.lock:
-            if not self.warehouse.queue:
-                raise EmptyWarehouse("The warehouse is empty: there is no cube to get. Return a cube first "
-                                     "(returnCube) or reset the platform.", reason="empty-warehouse")
-            if self.world.run(lambda: self._cube_near(self.drop_point)) is not None:
-                raise DobotRefused("There is already a cube at the start of conveyor belt 2: run the belt "
-                                   "forward first.", reason="belt-occupied")
+            self.check_get_cube()
             cube = self.warehouse.queue[0]
             pick, put = self._plan(cube, self.warehouse.slots[0]), self._plan(cube, self.drop_point, 0.001)
             self._pick(cube, pick)
@@ -197,17 +201,22 @@ class Dobot:
             self._put(put)
             return cube
 
+    def check_return_cube(self) -> Cube:
+        """What `return_cube` refuses, without moving: no cube at the pickup, a full warehouse; else the cube."""
+        cube = self.world.run(lambda: self._cube_near(self.pickup_point))
+        if cube is None:
+            raise NoCubeAtPickup("There is no cube at the end of conveyor belt 1 to return: run the belt "
+                                 "backward until infrared sensor 1 detects the cube, then call returnCube.",
+                                 reason="no-cube")
+        if len(self.warehouse.queue) >= self.warehouse.capacity:
+            raise WarehouseFull(f"The warehouse is full ({self.warehouse.capacity} cubes).",
+                                reason="warehouse-full")
+        return cube
+
     def return_cube(self) -> Cube:
         """The cube waiting at the end of the left belt back to the end of the warehouse queue."""
         with self.lock:
-            cube = self.world.run(lambda: self._cube_near(self.pickup_point))
-            if cube is None:
-                raise NoCubeAtPickup("There is no cube at the end of conveyor belt 1 to return: run the belt "
-                                     "backward until infrared sensor 1 detects the cube, then call returnCube.",
-                                     reason="no-cube")
-            if len(self.warehouse.queue) >= self.warehouse.capacity:
-                raise WarehouseFull(f"The warehouse is full ({self.warehouse.capacity} cubes).",
-                                    reason="warehouse-full")
+            cube = self.check_return_cube()
             centre = np.asarray(self.world.run(lambda: body_pose(self.world.client, cube.body)[0]))
             pick = self._plan(cube, centre)
             put = self._plan(cube, self.warehouse.slots[len(self.warehouse.queue)], 0.001)

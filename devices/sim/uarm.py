@@ -156,13 +156,32 @@ class Uarm:
         return (np.asarray(point_world, dtype=float) - self.base_position) * 1000.0
 
     # --- actions --------------------------------------------------------------------------------
-    def go_to(self, x: float, y: float, z: float, speed: float = GOTO_SPEED) -> None:
-        """Real TD `goTo` (and `go` with a speed, mm/min): refuses before anything moves."""
+    def check_go_to(self, x: float, y: float, z: float, speed: float = GOTO_SPEED) -> None:
+        """What `go_to` refuses, without moving: out of the goTo box or speed range, or out of reach."""
         check_range({"x": x, "y": y, "z": z}, GOTO_RANGE, "goTo")
         lo, hi = SPEED_RANGE
         if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not lo <= speed <= hi:
             raise OutOfRange(f"go: speed must be within {lo}..{hi} mm/min, got {speed!r}", reason="out-of-range")
+        real_ik(x, y, z)
+
+    def go_to(self, x: float, y: float, z: float, speed: float = GOTO_SPEED) -> None:
+        """Real TD `goTo` (and `go` with a speed, mm/min): refuses before anything moves."""
+        self.check_go_to(x, y, z, speed)
         self._move((x, y, z), speed)
+
+    def check_turn(self, dy: float) -> None:
+        """What a turn of `dy` mm refuses, without moving."""
+        _, y, _ = self.position_mm
+        lo, hi = GOTO_RANGE["y"]
+        if not lo <= y + dy <= hi:
+            raise OutOfRange(f"turn: y would be {y + dy:.0f} mm, outside {lo}..{hi} mm", reason="out-of-range")
+
+    def place(self, x: float, y: float, z: float) -> None:
+        """Put the tool point at (x, y, z) at once (the twin following its real arm, which is already
+        there); any point the arm reaches, inside the goTo box or not. Unreachable: Unreachable."""
+        goal = real_ik(x, y, z)
+        with self.lock:
+            self.world.run(lambda: self.arm.apply(goal))
 
     def go(self, x: float, y: float, z: float, speed: float) -> None:
         self.go_to(x, y, z, speed)
@@ -196,11 +215,9 @@ class Uarm:
     # --- internals ------------------------------------------------------------------------------
     def _turn(self, dy: float) -> dict[str, int]:
         with self.lock:
+            self.check_turn(dy)
             x, y, z = self.position_mm
             new_y = y + dy
-            lo, hi = GOTO_RANGE["y"]
-            if not lo <= new_y <= hi:
-                raise OutOfRange(f"turn: y would be {new_y:.0f} mm, outside {lo}..{hi} mm", reason="out-of-range")
             self._move((x, new_y, z), GOTO_SPEED)
             return {"y": round(new_y)}
 

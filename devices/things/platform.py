@@ -101,10 +101,17 @@ def twin_td(slug: str) -> ThingDescription:
     return decode_td(twin_td_json(slug))
 
 
-def expose_device(session, slug: str, platform: IotPlatform, keys: Keys | None = None
-                  ) -> tuple[ExposedThing, Cleanup]:
-    """An ExposedThing (not exposed yet) serving `platform`'s device `slug`, and what undoes its bindings."""
-    thing = ExposedThing(session, twin_td(slug), slug, keys)
+def expose_device(session, slug: str, platform: IotPlatform, keys: Keys | None = None,
+                  real_td: dict[str, Any] | None = None) -> tuple[ExposedThing, Cleanup]:
+    """An ExposedThing (not exposed yet) serving `platform`'s device `slug`, and what undoes its bindings.
+    `real_td`: the real device's TD, for a twin that guards it (`devices.things.guard`): its TD also
+    offers the real device's actions it lacks (their handlers are the guard's)."""
+    if real_td is None:
+        thing = ExposedThing(session, twin_td(slug), slug, keys)
+    else:
+        from devices.things.guard import with_real_actions
+
+        thing = ExposedThing(session, with_real_actions(json.loads(twin_td_json(slug)), real_td), slug, keys)
     device = platform.devices[slug]
     if isinstance(device, Belt):
         cleanup = bind_belt(thing, device)

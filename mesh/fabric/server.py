@@ -122,6 +122,15 @@ class ExposedThing:
         self._actions[action] = fn
         return self
 
+    def wrap_action(self, action: str, wrap: Callable[[Act], Act]) -> "ExposedThing":
+        """Replace the action's handler by `wrap(handler)` (a guard in front of a device's own handler)."""
+        self._actions[action] = wrap(self._actions[action])
+        return self
+
+    def wrap_write(self, prop: str, wrap: Callable[[Write], Write]) -> "ExposedThing":
+        self._writes[prop] = wrap(self._writes[prop])
+        return self
+
     def on_file(self, name: str, source: FileSource, content_type: str) -> "ExposedThing":
         self._files[check_name(name)] = (source, content_type)
         return self
