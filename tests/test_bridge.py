@@ -207,3 +207,55 @@ def test_bad_bridge_commands_say_what_is_wrong_and_start_nothing(lab, real_lab):
     both = lab.cli("bridge", f"x={real_lab.url('Uarm')}", "--ca", __file__, "--insecure", timeout=60)
     assert both.returncode == 2 and "contradict" in both.stderr
     assert "x" not in lab.cli("things").stdout.split()
+
+
+def self_signed(tmp: Path) -> tuple[Path, Path]:
+    """A key and a self-signed certificate for the bare IP address 127.0.0.1 (as the real lab's devices have)."""
+    import datetime
+    import ipaddress
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    key = ec.generate_private_key(ec.SECP256R1())
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "real lab device")])
+    now = datetime.datetime.now(datetime.timezone.utc)
+    cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name).public_key(key.public_key())
+            .serial_number(x509.random_serial_number()).not_valid_before(now - datetime.timedelta(days=1))
+            .not_valid_after(now + datetime.timedelta(days=30))
+            .add_extension(x509.SubjectAlternativeName([x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), False)
+            .add_extension(x509.BasicConstraints(ca=True, path_length=None), True)
+            .sign(key, hashes.SHA256()))
+    key_file, cert_file = tmp / "device-key.pem", tmp / "device.pem"
+    key_file.write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                           serialization.NoEncryption()))
+    cert_file.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    return key_file, cert_file
+
+
+def test_https_to_a_bare_ip_address_needs_its_ca_or_a_loud_insecure(lab, tmp_path):
+    key, cert = self_signed(tmp_path)
+    with npm.RealLab(CREDENTIALS, tls=(key, cert)) as secure:
+        url = secure.url("ColorSensor")
+        assert url.startswith("https://127.0.0.1:")
+        untrusted = lab.cli("bridge", f"color-tls={url}", "--auth", AUTH, timeout=60)
+        assert untrusted.returncode == 2, untrusted.stderr
+        assert "not trusted" in untrusted.stderr and "--ca" in untrusted.stderr, untrusted.stderr
+        with_ca = lab.spawn("bridge", f"color-tls={url}", "--auth", AUTH, "--ca", str(cert))
+        try:
+            lab.wait_things({"color-tls"})
+            assert httpx.get(f"{lab.http}/color-tls/properties/lux", timeout=30).json() == 1200
+        finally:
+            with_ca.terminate()
+            with_ca.wait(timeout=30)
+        insecure = subprocess.Popen(lab.cli_args("bridge", f"color-tls2={url}", "--auth", AUTH, "--insecure"),
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            lab.wait_things({"color-tls2"})
+            assert httpx.get(f"{lab.http}/color-tls2/properties/temperature", timeout=30).json() == 4500
+        finally:
+            insecure.terminate()
+            _, err = insecure.communicate(timeout=30)
+        assert "WARNING" in err and "NOT checked" in err

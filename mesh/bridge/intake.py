@@ -46,6 +46,9 @@ def fetch_document(source: str, client: Any | None = None) -> dict[str, Any]:
 
 
 def _fetch_problem(p: Problem) -> str:
+    if p.reason == "tls-untrusted":
+        return (f"{p.detail}: give the CA that signed it with --ca FILE (or, knowing what it means, "
+                "--insecure)")
     if p.status in (401, 403):
         return (f"the Thing refused the credentials (HTTP {p.status}): give them with --auth "
                 "basic:USER:PASS or bearer:TOKEN")

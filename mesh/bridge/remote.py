@@ -56,6 +56,8 @@ class RemoteThing:
         if p.status in (401, 403):
             return BadGateway(f"{self.title} at {self.host} refused the bridge's credentials for {what} "
                               f"(HTTP {p.status}): check the bridge's --auth", reason="remote-credentials")
+        if p.reason == "tls-untrusted":
+            return BadGateway(f"{self.title} at {self.host}: {p.detail} ({what})", reason="remote-tls")
         if isinstance(p, Unavailable):
             return Unavailable(f"{self.title} at {self.host} is not answering ({what}): {p.detail or p}",
                                reason="remote-unavailable")

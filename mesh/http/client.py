@@ -75,6 +75,9 @@ class HttpClient:
         except httpx.TimeoutException as e:
             raise TimedOut(f"{method} {href or form.href}: no answer in time ({e})") from None
         except httpx.ConnectError as e:
+            if "CERTIFICATE_VERIFY_FAILED" in str(e):
+                raise BadGateway(f"{method} {href or form.href}: its TLS certificate is not trusted ({e})",
+                                 reason="tls-untrusted") from None
             raise Unavailable(f"{method} {href or form.href}: cannot connect ({e})") from None
         except httpx.HTTPError as e:
             raise BadGateway(f"{method} {href or form.href}: {e}") from None

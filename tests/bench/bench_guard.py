@@ -70,11 +70,10 @@ def main() -> None:
     print(f"{'path':<12} {'p50':>8} {'p99':>8} {'mean':>8}")
     for name, t in results.items():
         print(f"{name:<12} {np.percentile(t, 50):8.2f} {np.percentile(t, 99):8.2f} {t.mean():8.2f}")
-    g, d, a = results["guarded"], results["direct"], results["twin alone"]
-    print(f"guard's added latency over a direct call: p50 {np.percentile(g, 50) - np.percentile(d, 50):.2f} ms, "
-          f"p99 {np.percentile(g, 99) - np.percentile(d, 99):.2f} ms (ratio p50 {np.percentile(g, 50) / np.percentile(d, 50):.1f}x)")
-    print(f"forward's added latency over the twin alone: p50 {np.percentile(g, 50) - np.percentile(a, 50):.2f} ms, "
-          f"p99 {np.percentile(g, 99) - np.percentile(a, 99):.2f} ms")
+    g, d, a = ({q: np.percentile(results[k], q) for q in (50, 99)} for k in ("guarded", "direct", "twin alone"))
+    print(f"guard's added latency over a direct call: p50 {g[50] - d[50]:.2f} ms, p99 {g[99] - d[99]:.2f} ms "
+          f"(ratio p50 {g[50] / d[50]:.1f}x)")
+    print(f"forward's added latency over the twin alone: p50 {g[50] - a[50]:.2f} ms, p99 {g[99] - a[99]:.2f} ms")
 
 
 if __name__ == "__main__":

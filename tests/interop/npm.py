@@ -226,8 +226,10 @@ class RealLab:
     authentication, with a request log. `kill()` and `start()` again keep its port, as a real device
     that goes down and comes back at the same address."""
 
-    def __init__(self, credentials: dict | None = None, port: int = 0, ready_timeout: float = 30):
-        self.credentials, self.port, self.ready_timeout = credentials, port, ready_timeout
+    def __init__(self, credentials: dict | None = None, port: int = 0, ready_timeout: float = 30,
+                 tls: tuple[Path, Path] | None = None):
+        """`tls`: (key, certificate) PEM files: serve https with them."""
+        self.credentials, self.port, self.ready_timeout, self.tls = credentials, port, ready_timeout, tls
         self.things: dict[str, str] = {}  # TD file name (Uarm, WarehouseDobot, ...) -> TD URL
         self.process: subprocess.Popen | None = None
         self._stderr = tempfile.TemporaryFile("w+")
@@ -237,6 +239,8 @@ class RealLab:
         command = [_node(), str(REAL_LAB), "--tds", str(REAL_LAB_TDS), "--port", str(self.port), "--exit-with-stdin"]
         if self.credentials:
             command += ["--basic", f"{self.credentials['username']}:{self.credentials['password']}"]
+        if self.tls:
+            command += ["--tls-key", str(self.tls[0]), "--tls-cert", str(self.tls[1])]
         process = subprocess.Popen(command, cwd=INTEROP_DIR, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                    stderr=self._stderr, text=True)
         lines: queue.Queue[str] = queue.Queue()
@@ -257,7 +261,7 @@ class RealLab:
 
     @property
     def base(self) -> str:
-        return f"http://127.0.0.1:{self.port}"
+        return f"{'https' if self.tls else 'http'}://127.0.0.1:{self.port}"
 
     def url(self, thing: str) -> str:
         return self.things[thing]
@@ -267,7 +271,7 @@ class RealLab:
         input}), in order, since the last `clear_log` (or start)."""
         import httpx
 
-        return httpx.get(f"{self.base}/_log", timeout=10).json()
+        return httpx.get(f"{self.base}/_log", timeout=10, verify=False).json()  # our own mock
 
     def calls(self, thing: str | None = None, affordance: str | None = None) -> list[dict]:
         return [e for e in self.log() if "affordance" in e and thing in (None, e["thing"])
@@ -279,7 +283,7 @@ class RealLab:
     def clear_log(self) -> None:
         import httpx
 
-        httpx.delete(f"{self.base}/_log", timeout=10)
+        httpx.delete(f"{self.base}/_log", timeout=10, verify=False)
 
     def kill(self) -> None:
         process, self.process = self.process, None

@@ -3,7 +3,7 @@
 // TDs (tests/data/reference-tds/real-lab: titles, affordances and schemas as they are), behind basic
 // authentication, with minimal behaviour and a log of every request received.
 //
-//   node real-lab.mjs --tds DIR [--port 0] [--basic user:password] [--exit-with-stdin]
+//   node real-lab.mjs --tds DIR [--port 0] [--basic user:password] [--tls-key K --tls-cert C] [--exit-with-stdin]
 //
 // Each TD is served at GET /td/<file name without .json> as the real lab wrote it, its https hosts
 // replaced by this server (paths kept: the uArm's goTo stays at .../uarm/actions/goto; MQTT forms
@@ -28,6 +28,8 @@ const { values: args } = parseArgs({
         tds: { type: "string" },
         port: { type: "string", default: "0" },
         basic: { type: "string" },
+        "tls-key": { type: "string" },
+        "tls-cert": { type: "string" },
         "exit-with-stdin": { type: "boolean", default: false },
     },
 });
@@ -75,11 +77,12 @@ async function middleware(req, res, next) {
     next();
 }
 
-const server = new HttpServer({ port: Number(args.port), address: "127.0.0.1", middleware });
+const tls = args["tls-key"] ? { serverKey: args["tls-key"], serverCert: args["tls-cert"] } : {};
+const server = new HttpServer({ port: Number(args.port), address: "127.0.0.1", middleware, ...tls });
 const servient = new Servient();
 servient.addServer(server);
 const wot = await servient.start();
-base = `http://127.0.0.1:${server.getPort()}`;
+base = `${args["tls-key"] ? "https" : "http"}://127.0.0.1:${server.getPort()}`;
 server.baseUri = base;
 
 const clean = (affordances) => Object.fromEntries(Object.entries(affordances ?? {})
