@@ -196,6 +196,9 @@ def _ready_timeout(things: list[str]) -> float:
 @click.option("--real-calibration", multiple=True, metavar="DEVICE=CSV",
               help="Twin-to-real calibration pairs of a guarded device (twin_x,twin_y,twin_z,real_x,real_y,real_z "
                    "in mm) [default: the identity].")
+@click.option("--thing", "virtual_things", multiple=True, metavar="NAME=TD",
+              help="Add a virtual Thing served from the TD in a file or at an http(s) URL (repeatable; see "
+                   "`twinmesh virtual`).")
 @click.option("--outlive-parent", is_flag=True,
               help="Keep the lab running when the process that started `up` ends. Without it a lab started by a "
                    "script, a test or an editor stops when its starter dies, however it dies (a terminal's shell, "
@@ -205,7 +208,7 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
        auth: str | None, record: str | None, view: str, no_view: bool, speed: str, samples: int | None,
        tdgen_cache: str | None, fleet: int | None, fleet_first: int, join: str | None, direct: bool,
        real: tuple[str, ...], real_auth: str | None, real_ca: str | None, real_insecure: bool,
-       real_calibration: tuple[str, ...], outlive_parent: bool) -> None:
+       real_calibration: tuple[str, ...], virtual_things: tuple[str, ...], outlive_parent: bool) -> None:
     """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
 
     Scenes: iot-lab (default), iot-platform, ur10, lights, fleet (--fleet N virtual devices for load tests).
@@ -240,6 +243,14 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
                               real_calibration)
     elif real_calibration or real_auth or real_ca or real_insecure:
         raise usage_exit("--real-auth, --real-ca, --real-insecure and --real-calibration go with --real DEVICE=URL")
+    if virtual_things:
+        specs_v = _virtual_specs(virtual_things, commands.remote_access(None, None, False))
+        taken = {v.name for v in specs_v} & set(things)
+        if taken:
+            raise usage_exit(f"--thing {sorted(taken)[0]}: the scene {scene!r} already has a Thing of that name "
+                             f"({'a guarded real device' if sorted(taken)[0].endswith('-real') else 'a twin'})")
+        specs.append(ProcessSpec("virtual", entries.virtual, {"specs": specs_v}, role="virtual"))
+        things += [v.name for v in specs_v]
     if direct and not join:
         raise usage_exit("--direct is for --join ENDPOINT (this host's devices linked straight to that lab's router)")
     if zenoh_endpoint:
@@ -289,6 +300,70 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
         code = sup.run_until_stopped()
         queryable.undeclare()
     sys.exit(code)
+
+
+def _virtual_specs(given: tuple[str, ...], access: Any) -> list[Any]:
+    """Every NAME=TD taken in and checked, each value it needs drawn once: one that cannot be served
+    starts none of them (exit code 2, one line naming the first problem)."""
+    from devices.sim.schema_values import NoValue
+    from devices.things.virtual import VirtualSpec, prepare
+    from mesh.bridge.intake import IntakeError, take_in
+    from mesh.fabric.keys import check_slug
+
+    specs: list[Any] = []
+    client = access.client()
+    try:
+        for item in given:
+            name, sep, source = item.partition("=")
+            if not sep or not source:
+                raise usage_exit(f"{item!r} is not NAME=TD (a file or an http(s) URL)")
+            try:
+                check_slug(name)
+            except ValueError as e:
+                raise usage_exit(str(e)) from None
+            if name in {s.name for s in specs}:
+                raise usage_exit(f"{name}: the same NAME given twice")
+            try:
+                specs.append(VirtualSpec(name, source, take_in(source, client)))
+            except IntakeError as e:
+                raise usage_exit(str(e)) from None
+    finally:
+        client.close()
+    try:
+        prepare(specs, seed=0)
+    except NoValue as e:
+        raise usage_exit(f"cannot serve {e}") from None
+    return specs
+
+
+@main.command()
+@click.argument("given", nargs=-1, required=True, metavar="NAME=TD...")
+@click.option("--seed", type=int, help="Draw the same values on every run (default: different each run).")
+@click.option("--drift", is_flag=True, help="Let read-only numeric properties drift within their bounds.")
+@click.option("--events-every", type=click.FloatRange(min=0), default=5.0, show_default=True, metavar="S",
+              help="Fire every event every S seconds with valid data (0: never).")
+@click.option("--auth", "auth", metavar="SCHEME:CREDENTIALS", help="Credentials for TD URLs that need them.")
+@click.option("--ca", type=click.Path(dir_okay=False, exists=True), help=commands.CA_HELP)
+@click.option("--insecure", is_flag=True, help=commands.INSECURE_HELP)
+@click.pass_obj
+def virtual(settings: MeshSettings, given: tuple[str, ...], seed: int | None, drift: bool, events_every: float,
+            auth: str | None, ca: str | None, insecure: bool) -> None:
+    """Serve Things from their TDs alone (TD: a file or an http(s) URL) on a running lab, until Ctrl-C:
+    every value they give is valid by the TD's schemas; writes are kept, events fire, actions answer."""
+    from devices.things.virtual import run
+
+    specs = _virtual_specs(given, commands.remote_access(auth, ca, insecure))
+    with mesh_client(settings) as c:
+        for spec in specs:
+            if c.is_alive(spec.name, timeout=2.0):
+                raise CommandFailed(f"{spec.name}: a Thing of that name is already on the mesh (a device, a bridged "
+                                    f"remote Thing or another virtual one); give {spec.source} another NAME")
+    stop = commands.install_stop_handlers()
+
+    def ready() -> None:
+        click.echo(f"virtual Things ready: {', '.join(s.name for s in specs)}")
+
+    run(settings, stop, specs, seed=seed, drift=drift, events_every=events_every, ready=ready)
 
 
 def _guard_real(specs: list[ProcessSpec], scene: str, real: tuple[str, ...], access: Any,

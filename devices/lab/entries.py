@@ -71,3 +71,9 @@ def iot_lab(settings: MeshSettings, stop: threading.Event, **kwargs: Any) -> Non
     from devices.lab.iot_lab import run
 
     run(settings, stop, **kwargs)
+
+
+def virtual(settings: MeshSettings, stop: threading.Event, **kwargs: Any) -> None:
+    from devices.things.virtual import run
+
+    run(settings, stop, **kwargs)

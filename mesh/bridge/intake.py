@@ -5,6 +5,7 @@ share it."""
 from __future__ import annotations
 
 import json
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 from urllib.parse import urljoin
@@ -13,6 +14,8 @@ import msgspec
 
 from mesh.wot.problem import Problem
 from mesh.wot.td import decode_td
+
+TD_SCHEMA = "td-1.1-json-schema-validation.json"  # W3C's, shipped (mesh/wot/schemas/SOURCE.md)
 
 
 class IntakeError(ValueError):
@@ -65,13 +68,34 @@ def check_td(doc: dict[str, Any], source: str) -> dict[str, Any]:
     if is_thing_model(doc):
         raise IntakeError(f"{source}: this is a Thing Model (@type tm:ThingModel), not a Thing Description: "
                           "make a TD of it first (fill in its placeholders and give it forms)")
+    problem = first_problem(doc)
+    if problem is not None:
+        raise IntakeError(f"{source}: not a valid Thing Description: {problem}")
     try:
         decode_td(doc)
     except msgspec.ValidationError as e:
-        raise IntakeError(f"{source}: not a valid Thing Description: {e}") from None
-    if not doc.get("title"):
-        raise IntakeError(f"{source}: not a valid Thing Description: it has no title")
+        raise IntakeError(f"{source}: not a Thing Description twinmesh can serve: {e}") from None
     return doc
+
+
+@lru_cache(maxsize=1)
+def _td_schema() -> Any:
+    import jsonschema
+
+    schema = json.loads((Path(__file__).parent.parent / "wot" / "schemas" / TD_SCHEMA).read_text())
+    return jsonschema.Draft7Validator(schema)
+
+
+def first_problem(doc: dict[str, Any]) -> str | None:
+    """The first way `doc` breaks the W3C TD 1.1 JSON Schema, as `at <JSON pointer>: <what> (rule <keyword>)`."""
+    from jsonschema.exceptions import best_match
+
+    error = best_match(_td_schema().iter_errors(doc))
+    if error is None:
+        return None
+    pointer = "".join(f"/{str(p).replace('~', '~0').replace('/', '~1')}" for p in error.absolute_path) or "/"
+    message = error.message if len(error.message) <= 200 else error.message[:200] + "..."
+    return f"at {pointer}: {message} (rule {error.validator})"
 
 
 def absolute_hrefs(doc: dict[str, Any], url: str | None) -> dict[str, Any]:

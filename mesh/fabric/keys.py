@@ -8,6 +8,8 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
+from mesh.wot.names import escaped, unescaped
+
 DEFAULT_PREFIX = "wot"
 SLUG = re.compile(r"^[a-z0-9]+(?:-[a-z0-9]+)*\Z")  # \Z, not $: "name\n" is no slug
 NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*\Z")
@@ -46,7 +48,7 @@ class Keys:
         return f"{self.prefix}/{thing}/td"
 
     def affordance(self, thing: str, kind: Kind, name: str) -> str:
-        return f"{self.prefix}/{thing}/{kind}/{name}"
+        return f"{self.prefix}/{thing}/{kind}/{escaped(name)}"
 
     def property(self, thing: str, name: str) -> str:
         return self.affordance(thing, "properties", name)
@@ -75,7 +77,7 @@ class Keys:
         if len(rest) == 2 and rest[1] == "td":
             return ParsedKey(rest[0], "td", "")
         if len(rest) == 3 and rest[1] in KINDS:
-            return ParsedKey(rest[0], rest[1], rest[2])
+            return ParsedKey(rest[0], rest[1], unescaped(rest[2]))
         return None
 
 

@@ -10,6 +10,7 @@ from starlette.requests import Request
 
 from mesh.http.credentials import Auth
 from mesh.http.gateway import SLUG, Registry
+from mesh.wot.names import unescaped
 from mesh.wot.problem import NotFound
 from mesh.wot.td import NOSEC, AffordanceKind, Security, ThingDescription
 
@@ -44,7 +45,7 @@ async def thing_td(request: Request) -> tuple[str, ThingDescription]:
 async def affordance(request: Request, kind: AffordanceKind) -> tuple[str, str, Any]:
     """(thing, name, affordance) for `/{thing}/{kind}/{name}...`: 404 when the TD has no such affordance."""
     thing, td = await thing_td(request)
-    name = request.path_params["name"]
+    name = unescaped(request.path_params["name"])
     found = td.affordance(kind, name)
     if found is None:
         raise NotFound(td.no_such(thing, kind, name))

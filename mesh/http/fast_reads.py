@@ -13,6 +13,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 
 from mesh.http.credentials import Auth
 from mesh.http.gateway import Registry
+from mesh.wot.names import unescaped
 
 _HEADERS = [(b"content-type", b"application/json"), (b"vary", b"Origin")]
 
@@ -25,7 +26,7 @@ class FastReads:
         if scope["type"] == "http" and scope["method"] == "GET" and not scope["query_string"]:
             parts = scope["path"].split("/")
             if len(parts) == 4 and parts[2] == "properties" and self._plain(scope):
-                payload = self.registry.cached(parts[1], parts[3])
+                payload = self.registry.cached(parts[1], unescaped(parts[3]))
                 if payload is not None:
                     await send({"type": "http.response.start", "status": 200,
                                 "headers": [*_HEADERS, (b"content-length", str(len(payload)).encode())]})

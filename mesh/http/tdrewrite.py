@@ -23,6 +23,7 @@ from urllib.parse import urljoin
 import msgspec
 
 from mesh.wot import units
+from mesh.wot.names import escaped
 from mesh.wot.td import (
     INVOCATION_ID,
     JSON,
@@ -54,9 +55,9 @@ def http_td(td: ThingDescription, thing: str, base: str, security: Security = NO
     of `source` (the TD as the Thing serves it) that the model does not hold are kept."""
     td = with_types(td)
     url = f"{base}/{thing}"
-    props = {n: _property(p, f"{url}/properties/{n}") for n, p in td.properties.items()}
-    actions = {n: _action(a, f"{url}/actions/{n}") for n, a in td.actions.items()}
-    events = {n: _event(e, f"{url}/events/{n}") for n, e in td.events.items()}
+    props = {n: _property(p, f"{url}/properties/{escaped(n)}") for n, p in td.properties.items()}
+    actions = {n: _action(a, f"{url}/actions/{escaped(n)}") for n, a in td.actions.items()}
+    events = {n: _event(e, f"{url}/events/{escaped(n)}") for n, e in td.events.items()}
     forms = [Form(href=f"{url}/properties", op=["readallproperties", "readmultipleproperties"], contentType=JSON)
              ] if props else []
     if any(not p.readOnly for p in td.properties.values()):

@@ -12,6 +12,7 @@ from typing import Any, Literal
 
 import msgspec
 
+from mesh.wot.names import escaped
 from mesh.wot.units import PREFIX, QUDT_UNITS
 
 TD_CONTEXT: list[Any] = [
@@ -200,7 +201,7 @@ INVOCATION_ID = DataSchema(
 def zenoh_forms(td: ThingDescription, prefix: str, thing: str) -> ThingDescription:
     """The TD as served on Zenoh: every form's href is the affordance's key expression."""
     def href(kind: str, name: str) -> str:
-        return f"zenoh:{prefix}/{thing}/{kind}/{name}"
+        return f"zenoh:{prefix}/{thing}/{kind}/{escaped(name)}"
 
     props = {
         n: msgspec.structs.replace(p, forms=[Form(href=href("properties", n), op=property_ops(p), contentType=JSON)]
@@ -223,18 +224,47 @@ def zenoh_forms(td: ThingDescription, prefix: str, thing: str) -> ThingDescripti
 
 
 REWRITTEN_TERMS = frozenset({"forms", "links", "base", "security", "securityDefinitions", "@context", "id", "title"})
+AFFORDANCE_KINDS = ("properties", "actions", "events")
 
 
 def keep_terms(source: Any, served: Any) -> Any:
     """`served` with every term of `source` that it lacks put back, at every depth: what a Thing
     said beyond this model (an extension vocabulary's terms, JSON Schema keywords TD 1.1 does not
-    name) reaches its readers unchanged. Terms the server rewrites (forms, links, security...)
-    and every term `served` has are left as served."""
+    name) reaches its readers unchanged. Only where the server writes them are terms left as served:
+    the Thing's own `REWRITTEN_TERMS` and each affordance's `forms`. Everywhere else, a term named
+    `id`, `title` or `links` (a property called `id`, links inside an affordance) is the Thing's and
+    kept; lists (`oneOf`, tuple `items`, `enum`) are kept element by element."""
     if not (isinstance(source, dict) and isinstance(served, dict)):
         return served
     out = dict(served)
     for key, value in source.items():
         if key in REWRITTEN_TERMS:
             continue
-        out[key] = keep_terms(value, out[key]) if key in out else value
+        if key in AFFORDANCE_KINDS and isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = {name: _keep_affordance(a, out[key][name]) if name in out[key] else a
+                        for name, a in value.items()} | {n: a for n, a in out[key].items() if n not in value}
+        else:
+            out[key] = _keep(value, out[key]) if key in out else value
     return out
+
+
+def _keep_affordance(source: Any, served: Any) -> Any:
+    if not (isinstance(source, dict) and isinstance(served, dict)):
+        return served
+    out = dict(served)
+    for key, value in source.items():
+        if key != "forms":
+            out[key] = _keep(value, out[key]) if key in out else value
+    return out
+
+
+def _keep(source: Any, served: Any) -> Any:
+    """Every term of `source` at every depth, with what `served` says where both have a term."""
+    if isinstance(source, dict) and isinstance(served, dict):
+        return {**served, **{k: _keep(v, served[k]) if k in served else v for k, v in source.items()}}
+    if isinstance(source, list) and isinstance(served, list) and len(source) == len(served):
+        return [_keep(a, b) for a, b in zip(source, served)]
+    if type(source) is not type(served) and isinstance(source, (int, float)) and not isinstance(source, bool) \
+            and source == served:
+        return source  # the Thing's 120, not the model's 120.0
+    return served
