@@ -7,7 +7,7 @@ can be drawn from (contradicting keywords) is `NoValue` naming where. Strings ma
 come from rstr's regex generator; the rest is here because no library gives valid values seeded and
 judged as validators judge them: a fractional `multipleOf` (0.1, 0.01) must pass jsonschema's own
 float test (`0.3 / 0.1` is not an integer to it, `0.4 / 0.1` is), a `oneOf` value must match exactly
-one branch, lengths and patterns hold together. jsf (JSON Schema Faker) and hypothesis-jsonschema
+one branch, lengths and patterns hold together (`strict_multiple`). jsf (JSON Schema Faker) and hypothesis-jsonschema
 were weighed: the first draws from a subset and does not check, the second is built for tests
 (unseeded `example()`, no way to keep a value in bounds across calls).
 """
@@ -90,6 +90,8 @@ class SchemaValues:
             else:
                 m = schema.get("multipleOf")
                 candidate = _multiple(candidate, m) if isinstance(m, (int, float)) else round(candidate, 6)
+                if isinstance(m, (int, float)) and not strict_multiple(candidate, m):
+                    continue
             if is_valid(candidate, schema):
                 return candidate
         return value
@@ -162,7 +164,7 @@ class SchemaValues:
                 raise _Impossible(f"no multiple of {m} within {lo}..{hi}")
             for _ in range(40):  # the validator's float test fails some multiples (0.3 / 0.1): draw again
                 v = _multiple(self.rng.randint(k_lo, k_hi) * m, m)
-                if lo <= v <= hi and is_valid(v, {"type": "number", "multipleOf": m}):
+                if lo <= v <= hi and strict_multiple(v, m):
                     return v
             raise _Impossible(f"no multiple of {m} within {lo}..{hi} that validators accept")
         return round(self.rng.uniform(lo, hi), 3) if hi - lo > 0.01 else lo
@@ -223,6 +225,14 @@ class SchemaValues:
 
 class _Impossible(Exception):
     pass
+
+
+def strict_multiple(v: float, m: float) -> bool:
+    """`v` is a multiple of `m` as jsonschema and node-wot's ajv judge it: `v / m` an exact integer in
+    floating point (17.7 is no multiple of 0.1 to them: 17.7 / 0.1 = 176.99999999999997). The
+    adapter's own input check is more lenient; values given out must pass the strict test."""
+    q = v / m
+    return math.isfinite(q) and q == int(q)
 
 
 def _type_of(schema: dict[str, Any]) -> Any:

@@ -99,8 +99,9 @@ def _action(a: ActionAffordance, href: str) -> ActionAffordance:
     is over, hence `synchronous: true` as SPEC §5 says), then the opt-in asynchronous one (201 +
     Location of a status resource) and that resource's query and cancel."""
     status = f"{href}/{{id}}"
+    synchronous = True if a.synchronous is None else a.synchronous  # a Thing that says otherwise is kept
     return msgspec.structs.replace(
-        a, synchronous=True, uriVariables={**(a.uriVariables or {}), "id": INVOCATION_ID},
+        a, synchronous=synchronous, uriVariables={**(a.uriVariables or {}), "id": INVOCATION_ID},
         forms=[Form(href=href, op="invokeaction", contentType=JSON),
                Form(href=f"{href}?async=true", op="invokeaction", contentType=JSON,
                     response={"contentType": JSON, "htv:statusCodeValue": 201,

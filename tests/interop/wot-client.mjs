@@ -12,6 +12,8 @@
 //
 // Steps (every step may carry "timeoutMs", default 10000, and an "id" to refer to it):
 //   {"op":"readProperty","name":P}                      -> value
+//   {"op":"readProperty","name":P,"raw":true}           -> raw: the payload as text (node-wot's value() refuses
+//                                                          a property whose TD gives no data schema type)
 //   {"op":"readAllProperties"}                          -> value: {P: value, ...}
 //   {"op":"writeProperty","name":P,"value":V}
 //   {"op":"invokeAction","name":A,"input":V?}           -> value (absent when the action has no output)
@@ -203,8 +205,11 @@ class Runner {
         // made a request before: such steps get a ConsumedThing of their own.
         const t = step.formIndex === undefined ? this.thing : await this.wot.consume(this.td);
         switch (step.op) {
-            case "readProperty":
-                return { ok: true, value: await within(ms, t.readProperty(step.name, options).then((o) => o.value()), what) };
+            case "readProperty": {
+                const output = await within(ms, t.readProperty(step.name, options), what);
+                if (step.raw) return { ok: true, raw: Buffer.from(await output.arrayBuffer()).toString() };
+                return { ok: true, value: await within(ms, output.value(), what) };
+            }
             case "readAllProperties": {
                 const outputs = await within(ms, t.readAllProperties(), what);
                 const value = {};
