@@ -74,7 +74,7 @@ def http_td(td: ThingDescription, thing: str, base: str, security: Security = NO
     links = [_link(link, url, thing) for link in td.links if link.rel != "self"]
     links.insert(0, Link(href=url, rel="self", type=TD_JSON))
     out = msgspec.structs.replace(
-        td, title=thing, id=served_id(td, thing),
+        td, title=td.title or thing, id=served_id(td, thing),
         context=_context(td.context), base=None, properties=props, actions=actions, events=events,
         forms=forms, links=links, securityDefinitions=dict(security[0]), security=list(security[1]))
     return keep_terms(source, msgspec.to_builtins(out)) if source else msgspec.to_builtins(out)

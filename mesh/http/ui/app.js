@@ -118,7 +118,7 @@ function field(schema = {}, label = "value") {
 
 // --- one Thing ------------------------------------------------------------------------------------
 function propertyRow(td, name, p) {
-  const value = $("output", { class: "value", "data-thing": td.title, "data-property": name, text: "…" });
+  const value = $("output", { class: "value", "data-thing": nameOf(td), "data-property": name, text: "…" });
   const row = $("div", { class: "affordance property", "data-property": name },
     $("span", { class: "name", text: p.title || name }), " ", value, " ", $("span", { class: "unit", text: unitOf(p) }));
   const read = formFor(p, "readproperty");
@@ -165,14 +165,21 @@ function actionRow(td, name, a) {
 
 function eventRow(td, name, e) {
   return $("div", { class: "affordance event", "data-event": name }, $("span", { class: "name", text: e.title || name }),
-    $("ol", { class: "log", "data-thing": td.title, "data-event": name }));
+    $("ol", { class: "log", "data-thing": nameOf(td), "data-event": name }));
+}
+
+// The Thing's name on the adapter: the last segment of its TD's own URL (its title is the Thing's to choose).
+function nameOf(td) {
+  const self = (td.links || []).find((l) => l.rel === "self");
+  return self ? decodeURIComponent(new URL(self.href, location.href).pathname.split("/").pop()) : td.title;
 }
 
 function render(td) {
   const links = (td.links || []).map((l) => $("a", { href: l.href, type: l.type, text: l.rel === "self" ? "TD" : (l.href.split("/").pop() || l.rel) }));
   if (page.view) links.push($("a", { href: page.view, text: "3D view" }));
-  const section = $("section", { class: "thing", id: `thing-${td.title}`, "data-thing": td.title },
-    $("h2", { text: td.title }), td.description ? $("p", { class: "description", text: td.description }) : null,
+  const name = nameOf(td);
+  const section = $("section", { class: "thing", id: `thing-${name}`, "data-thing": name },
+    $("h2", { text: td.title === name ? name : `${td.title} (${name})` }), td.description ? $("p", { class: "description", text: td.description }) : null,
     $("div", { class: "links" }, ...links));
   const props = Object.entries(td.properties || {}), actions = Object.entries(td.actions || {}), events = Object.entries(td.events || {});
   if (props.length) section.append($("h3", { text: "Properties" }), ...props.map(([n, p]) => propertyRow(td, n, p)));
@@ -229,18 +236,19 @@ function update(name, data) {  // one notification of the lab stream: `<thing>/<
 }
 
 // --- the page -------------------------------------------------------------------------------------
-const shown = new Map();  // title -> {section}
+const shown = new Map();  // name -> {section}
 
 function place(td) {
-  const old = shown.get(td.title);
+  const name = nameOf(td);
+  const old = shown.get(name);
   const section = render(td);
   const main = document.getElementById("things");
   if (old) old.section.replaceWith(section);
   else {
-    const after = [...shown.keys()].sort().find((t) => t > td.title);
+    const after = [...shown.keys()].sort().find((t) => t > name);
     main.insertBefore(section, after ? shown.get(after).section : null);
   }
-  shown.set(td.title, { section });
+  shown.set(name, { section });
 }
 
 async function directory(kind, data) {
