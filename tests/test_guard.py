@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import subprocess
 import time
+from pathlib import Path
 
 import httpx
 import numpy as np
@@ -150,7 +151,7 @@ def test_bad_real_options_start_nothing_and_say_why(tmp_path, real_lab):
 
     lights = up("lights", "--real", f"uarm={real_lab.url('Uarm')}")
     assert lights.returncode == 2 and "iot-platform" in lights.stderr, lights.stderr
-    robot = up("iot-lab", "--real", f"ur10={real_lab.url('Uarm')}")
+    robot = up("iot-platform", "--real", f"ur10={real_lab.url('Uarm')}")
     assert robot.returncode == 2 and "ur10" in robot.stderr, robot.stderr
     down = up("iot-platform", "--real", "uarm=http://127.0.0.1:9/td/Uarm")
     assert down.returncode == 3 and "cannot connect" in down.stderr, down.stderr
@@ -158,3 +159,74 @@ def test_bad_real_options_start_nothing_and_say_why(tmp_path, real_lab):
     assert refused.returncode == 2 and "credentials" in refused.stderr, refused.stderr
     lonely = up("iot-platform", "--real-calibration", "uarm=x.csv")
     assert lonely.returncode == 2 and "--real" in lonely.stderr, lonely.stderr
+
+
+# --- a robot Thing guarding a real arm --------------------------------------------------------------
+
+HOME = {"shoulder_pan_joint": 0, "shoulder_lift_joint": -90, "elbow_joint": 0, "wrist_1_joint": -90,
+        "wrist_2_joint": 0, "wrist_3_joint": 0}
+
+
+@pytest.fixture(scope="module")
+def real_ur10(tmp_path_factory):
+    extra = tmp_path_factory.mktemp("real-ur10")
+    (extra / "UR10.json").write_text((Path(__file__).parent / "data" / "mock-real-ur10.json").read_text())
+    with npm.RealLab(CREDENTIALS, extra_tds=extra) as lab:
+        yield lab
+
+
+@pytest.fixture(scope="module")
+def ur10_lab(tmp_path_factory, real_ur10):
+    tmp = tmp_path_factory.mktemp("guard-ur10")
+    lab = start_lab(tmp, "ur10", things={"ur10", "ur10-real"}, extra_args=(
+        "--speed", "max", "--samples", "4000", "--tdgen-cache", str(tmp / "cache"),
+        "--real", f"ur10={real_ur10.url('UR10')}", "--real-auth", AUTH))
+    yield lab
+    lab.stop()
+
+
+def joints(lab, thing: str = "ur10") -> dict:
+    return httpx.get(f"{lab.http}/{thing}/properties/getJointposition", timeout=30).json()
+
+
+def test_a_robot_twin_guards_a_real_arm(ur10_lab, real_ur10):
+    lab = ur10_lab
+    deadline = time.monotonic() + 60  # the twin stands where the real arm said it stands
+    while time.monotonic() < deadline and not all(abs(joints(lab)[k] - v) < 0.01 for k, v in HOME.items()):
+        time.sleep(0.5)
+    real_ur10.clear_log()
+    refused = None
+    for lift, elbow in ((0, 0), (45, 0), (90, 0), (30, 120), (60, 150)):  # arm down through the table
+        target = {**HOME, "shoulder_lift_joint": lift, "elbow_joint": elbow}
+        if httpx.post(f"{lab.http}/ur10/actions/planMove", json={"joints": target}, timeout=120).status_code == 422:
+            refused = target
+            break
+    assert refused is not None, "no joint target the twin refuses among the candidates"
+    r = httpx.post(f"{lab.http}/ur10/actions/moveToJointPosition", json=refused, timeout=120)
+    assert r.status_code == 422, r.text
+    assert real_ur10.calls("UR10") == []  # neither the dry runs nor the refused move reached the real arm
+
+    accepted = {**HOME, "shoulder_pan_joint": 20}
+    r = httpx.post(f"{lab.http}/ur10/actions/moveToJointPosition", json=accepted, timeout=120)
+    assert r.status_code == 200, r.text
+    assert [c["input"] for c in real_ur10.calls("UR10", "moveToJointPosition")] == [accepted]
+    assert abs(joints(lab)["shoulder_pan_joint"] - 20) < 0.01
+
+    # the real arm moved by someone else: the twin follows
+    moved = {**HOME, "shoulder_pan_joint": -30}
+    httpx.post(f"{real_ur10.base}/ur10/actions/movejoints", json=moved,
+               auth=(CREDENTIALS["username"], CREDENTIALS["password"]), timeout=30).raise_for_status()
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and abs(joints(lab)["shoulder_pan_joint"] + 30) > 0.01:
+        time.sleep(0.25)
+    assert abs(joints(lab)["shoulder_pan_joint"] + 30) < 0.01
+    assert joints(lab, "ur10-real")["shoulder_pan_joint"] == -30
+
+    real_ur10.kill()
+    try:
+        r = httpx.post(f"{lab.http}/ur10/actions/moveToJointPosition", json=HOME, timeout=120)
+        assert r.status_code == 503, r.text
+        assert abs(joints(lab)["shoulder_pan_joint"] + 30) < 0.01  # the twin stood still
+    finally:
+        real_ur10.start()
+    assert httpx.post(f"{lab.http}/ur10/actions/moveToJointPosition", json=HOME, timeout=120).status_code == 200

@@ -375,9 +375,12 @@ def _guard_real(specs: list[ProcessSpec], scene: str, real: tuple[str, ...], acc
     from mesh.bridge.intake import IntakeError
     from mesh.bridge.run import parse_remote, take_in_all
 
-    world = [s for s in specs if s.name in ("iot-platform", "iot-lab")]
+    world = [s for s in specs if s.name in ("iot-platform", "iot-lab", "ur10")]
     if not world:
-        raise usage_exit(f"--real is for the scenes with the iot-platform's devices (iot-platform, iot-lab), not {scene!r}")
+        raise usage_exit(f"--real is for the scenes with devices that can guard a real one (iot-platform, iot-lab, "
+                         f"ur10), not {scene!r}")
+    guardable = {"iot-platform": set(PLATFORM_DEVICES), "iot-lab": {*PLATFORM_DEVICES, "ur10"},
+                 "ur10": {"ur10"}}[scene]
     try:
         remotes = [parse_remote(r) for r in real]
         pairs = dict(c.split("=", 1) for c in calibrations if "=" in c)
@@ -386,9 +389,9 @@ def _guard_real(specs: list[ProcessSpec], scene: str, real: tuple[str, ...], acc
     if len(pairs) != len(calibrations):
         raise usage_exit(f"--real-calibration takes DEVICE=CSV, not {[c for c in calibrations if '=' not in c][0]!r}")
     for remote in remotes:
-        if remote.name not in PLATFORM_DEVICES:
-            raise usage_exit(f"--real {remote.name}: the guarded devices are {', '.join(PLATFORM_DEVICES)} (a robot "
-                             f"Thing such as ur10 cannot guard a real arm yet)")
+        if remote.name not in guardable:
+            raise usage_exit(f"--real {remote.name}: in the scene {scene!r} the devices that can guard a real one are "
+                             f"{', '.join(sorted(guardable))}")
     unknown = sorted(set(pairs) - {r.name for r in remotes})
     if unknown:
         raise usage_exit(f"--real-calibration {unknown[0]}: no --real {unknown[0]}=URL to calibrate")

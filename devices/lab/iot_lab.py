@@ -30,7 +30,7 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
     `real`: the platform devices that guard their real devices, reached with `access` (`devices.things.guard`).
     """
     from devices.sim.layouts.lab import build_lab
-    from devices.things.guard import serve_platform
+    from devices.things.guard import guard_robot, serve_platform
     from devices.things.lights import Light
     from devices.things.pan_tilt import expose_pan_tilt
     from devices.things.robot import RobotThing
@@ -50,7 +50,11 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
             session = stack.enter_context(open_session(settings, thing=name))
             stack.enter_context(Light(session, name, settings.keys, on_change=lamp.show).thing)
         session = stack.enter_context(open_session(settings, thing=lab.ur10.name))
-        stack.enter_context(RobotThing(session, settings, lab.ur10, samples=samples))
+        robot = RobotThing(session, settings, lab.ur10, samples=samples)
+        for device in real:
+            if device.slug == lab.ur10.name:
+                guard_robot(stack, settings, robot, device, access, stop)
+        stack.enter_context(robot)
         session = stack.enter_context(open_session(settings, thing="world"))
         stack.enter_context(WorldThing(session, lab, settings.keys))
         stack.callback(lab.world.close)  # runs first on the way out: pending motions fail, handlers answer

@@ -334,6 +334,13 @@ class RobotTwin:
         finally:
             world.close()
 
+    def place_joints(self, joints: Mapping[str, float]) -> None:
+        """Stand at these joint values (TD units) at once: the twin following its real arm, which is
+        already there (`devices.things.guard`). BadInput beyond the limits; never during a move."""
+        goal = self.joint_goal(joints)
+        with self._move_lock:
+            self.world.run(lambda: self._apply(goal))
+
     def reset(self) -> None:
         """Back to the home configuration at once (a scene reset; the world cancels a move under way first)."""
         with self._move_lock:

@@ -166,6 +166,67 @@ def dobot_guard(thing: ExposedThing, remote: RemoteThing, dobot: Dobot) -> Guard
                                  "returnCube": lambda _: dobot.check_return_cube()})
 
 
+def robot_guard(robot: Any, remote: RemoteThing) -> Guard:
+    """A robot Thing's moves (`devices.things.robot.RobotThing`) checked and planned on the twin first,
+    exactly as `planMove` answers (a refusal is 422 with its reason). Inputs go as they are: they are in
+    the robot's TD frame, which is the real robot's when the twin was given its calibration."""
+    return Guard(robot.thing, remote, {"moveToJointPosition": lambda v: robot.plan({"joints": v}),
+                                       "moveToCartesianPosition": robot.plan, "moveToPose": robot.plan})
+
+
+class RobotMirror:
+    """Keeps a robot twin's joints where the real robot reports them (its `getJointposition`), each time
+    that report changes, while no guarded move runs."""
+
+    def __init__(self, twin: Any, remote: RemoteThing, guard: Guard, stopping: threading.Event):
+        self.twin, self.remote, self.guard = twin, remote, guard
+        self._stopping = stopping
+        self._last: Any = None
+        self._thread = threading.Thread(target=self._run, name=f"mirror {twin.name}", daemon=True)
+
+    def start(self) -> "RobotMirror":
+        self._thread.start()
+        return self
+
+    def follow_once(self) -> None:
+        try:
+            real = self.remote.read("getJointposition")
+        except Problem:
+            return
+        if real == self._last or not self.guard.busy.acquire(blocking=False):
+            return
+        try:
+            self.twin.place_joints(real)
+            self._last = real
+        except Problem as p:
+            log.warning("%s mirror: the twin cannot stand where the real robot says it is: %s", self.twin.name,
+                        p.detail or p)
+            self._last = real
+        finally:
+            self.guard.busy.release()
+
+    def _run(self) -> None:
+        while not self._stopping.wait(MIRROR_EVERY):
+            self.follow_once()
+
+
+def guard_robot(stack: Any, settings: Any, robot: Any, device: RealDevice, access: Any,
+                stopping: threading.Event) -> None:
+    """Put the real robot `device` behind the robot Thing `robot` (before it is exposed), mirror it, and
+    serve it on the mesh as `<name>-real`."""
+    from mesh.bridge.bridged import BridgedThing
+    from mesh.fabric.session import open_session
+
+    client = access.client()
+    stack.callback(client.close)
+    remote = RemoteThing(device.td, client, device.url)
+    guard = robot_guard(robot, remote)
+    guard.install(set(robot.thing.td.actions))
+    RobotMirror(robot.twin, remote, guard, stopping).start()
+    session = stack.enter_context(open_session(settings, thing=f"{device.slug}-real"))
+    stack.enter_context(BridgedThing(session, f"{device.slug}-real", remote, device.td, settings.keys))
+
+
 class UarmMirror:
     """Keeps the uArm twin where the real arm reports it is (see the module docstring)."""
 
@@ -217,7 +278,7 @@ def serve_platform(stack: Any, settings: Any, platform: Any, real: list[RealDevi
     from mesh.bridge.bridged import BridgedThing
     from mesh.fabric.session import open_session
 
-    guarded = {r.slug: r for r in real}
+    guarded = {r.slug: r for r in real if r.slug in PLATFORM_DEVICES}
     client = access.client() if guarded else HttpClient()
     stack.callback(client.close)
     for slug in PLATFORM_DEVICES:

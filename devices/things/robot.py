@@ -31,7 +31,7 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import msgspec
 
@@ -109,7 +109,7 @@ class RobotThing:
         t.on_action("moveToJointPosition", self._move_to_joints)
         t.on_action("moveToCartesianPosition", self._move_to_cartesian)
         t.on_action("moveToPose", self._move_to_pose)
-        t.on_action("planMove", self._plan_move)
+        t.on_action("planMove", self.plan)
         t.on_action("stop", lambda _: {"stopped": twin.stop()})
         t.on_file(TWIN_FILE, lambda: msgspec.json.encode(self.description()), "application/json")
         t.on_file(path.name, lambda: self._urdf_bytes, URDF_TYPE)
@@ -166,7 +166,7 @@ class RobotThing:
         finally:
             self.publisher.flush()
 
-    def _plan_move(self, request: dict[str, Any]) -> dict[str, Any]:
+    def plan(self, request: dict[str, Any]) -> dict[str, Any]:
         """The dry run: `{x, y, z}`, a pose `{x, y, z, roll, pitch, yaw}` or `{joints: {...}}`."""
         if all(k in request for k in ("x", "y", "z", "roll", "pitch", "yaw")):
             return self.twin.plan_pose((request["x"], request["y"], request["z"]),
@@ -237,12 +237,14 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
         speed: float | None = 1.0, planning_budget: float = 1.0, base_link: str | None = None,
         fixed: dict[str, float] | None = None, packages: dict[str, str] | None = None,
         allowed_collisions: tuple[tuple[str, str], ...] = (), surface: bool = True,
-        scene_robot: str | None = None, announce: Callable[[str], None] | None = None) -> None:
+        scene_robot: str | None = None, announce: Callable[[str], None] | None = None,
+        real: Sequence[Any] = (), access: Any = None) -> None:
     """Process entry: one robot in its own World (its scene's static bodies loaded) until `stop` is set.
 
     `base` is where the robot stands in the scene frame (default: the scene's robot placement);
     without a scene it stands on its mounting surface unless `surface` is False. `speed` None runs
-    the simulation as fast as possible.
+    the simulation as fast as possible. `real`: the real robot this twin guards (`devices.things.guard`),
+    reached with `access`.
     """
     from devices.sim.robot import WORKSPACE_WAIT, Base, RobotTwin
     from devices.sim.world import World
@@ -268,7 +270,12 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
                          planning_budget=planning_budget)
         stack.callback(twin.close)
         session = stack.enter_context(open_session(settings, thing=twin.name))
-        stack.enter_context(RobotThing(session, settings, twin, samples=samples, seed=seed))
+        thing = RobotThing(session, settings, twin, samples=samples, seed=seed)
+        for device in real:
+            from devices.things.guard import guard_robot
+
+            guard_robot(stack, settings, thing, device, access, stop)
+        stack.enter_context(thing)
         stack.callback(world.close)  # first on the way out: pending motions fail, their handlers answer
         log.info("%s: %s on the mesh (speed %s)", twin.name, robot.name, "max" if speed is None else f"{speed:g}")
         world.on_death(stop.set)

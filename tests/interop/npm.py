@@ -227,9 +227,11 @@ class RealLab:
     that goes down and comes back at the same address."""
 
     def __init__(self, credentials: dict | None = None, port: int = 0, ready_timeout: float = 30,
-                 tls: tuple[Path, Path] | None = None):
-        """`tls`: (key, certificate) PEM files: serve https with them."""
+                 tls: tuple[Path, Path] | None = None, extra_tds: Path | None = None):
+        """`tls`: (key, certificate) PEM files: serve https with them. `extra_tds`: a folder of more TDs
+        to serve beside the real lab's (a real UR10 for the robot guard)."""
         self.credentials, self.port, self.ready_timeout, self.tls = credentials, port, ready_timeout, tls
+        self.extra_tds = extra_tds
         self.things: dict[str, str] = {}  # TD file name (Uarm, WarehouseDobot, ...) -> TD URL
         self.process: subprocess.Popen | None = None
         self._stderr = tempfile.TemporaryFile("w+")
@@ -239,6 +241,8 @@ class RealLab:
         command = [_node(), str(REAL_LAB), "--tds", str(REAL_LAB_TDS), "--port", str(self.port), "--exit-with-stdin"]
         if self.credentials:
             command += ["--basic", f"{self.credentials['username']}:{self.credentials['password']}"]
+        if self.extra_tds:
+            command += ["--tds", str(self.extra_tds)]
         if self.tls:
             command += ["--tls-key", str(self.tls[0]), "--tls-cert", str(self.tls[1])]
         process = subprocess.Popen(command, cwd=INTEROP_DIR, stdin=subprocess.PIPE, stdout=subprocess.PIPE,

@@ -3,7 +3,7 @@
 // TDs (tests/data/reference-tds/real-lab: titles, affordances and schemas as they are), behind basic
 // authentication, with minimal behaviour and a log of every request received.
 //
-//   node real-lab.mjs --tds DIR [--port 0] [--basic user:password] [--tls-key K --tls-cert C] [--exit-with-stdin]
+//   node real-lab.mjs --tds DIR [--tds DIR2 ...] [--port 0] [--basic user:password] [--tls-key K --tls-cert C] [--exit-with-stdin]
 //
 // Each TD is served at GET /td/<file name without .json> as the real lab wrote it, its https hosts
 // replaced by this server (paths kept: the uArm's goTo stays at .../uarm/actions/goto; MQTT forms
@@ -25,7 +25,7 @@ console.log = console.info = console.debug = console.error; // stdout carries th
 
 const { values: args } = parseArgs({
     options: {
-        tds: { type: "string" },
+        tds: { type: "string", multiple: true },
         port: { type: "string", default: "0" },
         basic: { type: "string" },
         "tls-key": { type: "string" },
@@ -44,8 +44,8 @@ let seq = 0;
 const note = (entry) => log.push({ seq: ++seq, ...entry });
 const expected = args.basic !== undefined && `Basic ${Buffer.from(args.basic).toString("base64")}`;
 
-const documents = Object.fromEntries(readdirSync(args.tds).filter((f) => f.endsWith(".json"))
-    .map((f) => [f.slice(0, -5), JSON.parse(readFileSync(join(args.tds, f), "utf8"))]));
+const documents = Object.fromEntries([].concat(args.tds).flatMap((dir) => readdirSync(dir)
+    .filter((f) => f.endsWith(".json")).map((f) => [f.slice(0, -5), JSON.parse(readFileSync(join(dir, f), "utf8"))])));
 const routes = new Map(); // "METHOD real-path" or "real-path" -> node-wot path
 let base = "";
 
@@ -127,6 +127,17 @@ const behaviours = {
         });
         return {};
     },
+    UR10(thing) {
+        const joints = { shoulder_pan_joint: 0, shoulder_lift_joint: -90, elbow_joint: 0, wrist_1_joint: -90,
+            wrist_2_joint: 0, wrist_3_joint: 0 };
+        let position = { x: 0, y: 0, z: 0 };
+        thing.setPropertyReadHandler("getJointposition", async () => joints);
+        thing.setPropertyReadHandler("getCartesianposition", async () => position);
+        return {
+            moveToJointPosition: (v) => { Object.assign(joints, v); },
+            moveToCartesianPosition: (v) => { position = v; },
+        };
+    },
     ColorSensor(thing) {
         thing.setPropertyReadHandler("color", async () => [200, 30, 30]);
         thing.setPropertyReadHandler("lux", async () => 1200);
@@ -145,7 +156,7 @@ for (const [name, td] of Object.entries(documents)) {
         events: clean(td.events),
     });
     const kind = name.replace(/\d+$/, "");
-    const actions = (behaviours[kind] ?? (() => ({})))(thing, td);
+    const actions = (behaviours[name] ?? behaviours[kind] ?? (() => ({})))(thing, td);
     for (const action of Object.keys(td.actions ?? {})) {
         thing.setActionHandler(action, async (input) => {
             const value = td.actions[action].input === undefined ? undefined : await input.value();
