@@ -230,3 +230,19 @@ def test_a_robot_twin_guards_a_real_arm(ur10_lab, real_ur10):
     finally:
         real_ur10.start()
     assert httpx.post(f"{lab.http}/ur10/actions/moveToJointPosition", json=HOME, timeout=120).status_code == 200
+
+
+def test_the_recorder_has_the_real_device_beside_its_twin_on_one_timeline(lab, tmp_path):
+    from labs import stop_process
+    from test_recorder import scalars, wait_for_line
+
+    path, log = tmp_path / "guarded.rrd", tmp_path / "recorder.log"
+    recorder = lab.spawn("record", str(path), log=log)
+    wait_for_line(log, "recording to", recorder)
+    assert go_to(lab, 170, -60, 75).status_code == 204
+    time.sleep(3)  # the real uArm's location is read every second (it offers no http observation)
+    assert stop_process(recorder), log.read_text()
+    twin_x = scalars(path, "/things/uarm/properties/location/x")
+    real_x = scalars(path, "/things/uarm-real/properties/location/x")
+    assert twin_x and real_x, log.read_text()
+    assert abs(twin_x[-1] - 170) <= 1 and real_x[-1] == round(170 + OFFSET[0])

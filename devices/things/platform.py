@@ -207,15 +207,25 @@ def bind_uarm(thing: ExposedThing, uarm: Uarm) -> Cleanup:
         uarm.home_loc = value  # refuses (422) a home the arm cannot reach
         thing.emit_property_change("homeLoc", uarm.home_loc)
 
+    def moving(act: Callable[[Any], Any]) -> Callable[[Any], Any]:
+        """The move, then its new `location` published (the recorder plots it; the real TD offers no
+        http observation of it, so it stays unobservable here too)."""
+        def moved(v: Any) -> Any:
+            try:
+                return act(v)
+            finally:
+                thing.emit_property_change("location", uarm.location)
+        return moved
+
     thing.on_read("location", lambda: uarm.location)
     thing.on_read("homeLoc", lambda: uarm.home_loc).on_write("homeLoc", write_home)
-    thing.on_action("goTo", lambda v: uarm.go_to(*xyz(v)))
-    thing.on_action("go", lambda v: uarm.go(*xyz(v), speed=v["speed"]))
-    thing.on_action("goHome", lambda _: uarm.go_home())
+    thing.on_action("goTo", moving(lambda v: uarm.go_to(*xyz(v))))
+    thing.on_action("go", moving(lambda v: uarm.go(*xyz(v), speed=v["speed"])))
+    thing.on_action("goHome", moving(lambda _: uarm.go_home()))
     thing.on_action("gripOpen", lambda _: uarm.grip_open())
     thing.on_action("gripClose", lambda _: uarm.grip_close())
-    thing.on_action("turnLeft", lambda _: uarm.turn_left())
-    thing.on_action("turnRight", lambda _: (uarm.turn_right(), None)[1])  # no output in the real TD
+    thing.on_action("turnLeft", moving(lambda _: uarm.turn_left()))
+    thing.on_action("turnRight", moving(lambda _: (uarm.turn_right(), None)[1]))  # no output in the real TD
     thing.on_action("reset", lambda _: None)
     return _nothing
 
