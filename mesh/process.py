@@ -5,8 +5,14 @@ returns when `stop` is set; whoever starts it (a terminal, the lab's supervisor)
 """
 from __future__ import annotations
 
+import importlib.abc
+import importlib.machinery
+import os
 import signal
+import sys
 import threading
+from contextlib import contextmanager
+from typing import Any, Iterator
 
 
 class StopEvent(threading.Event):
@@ -37,3 +43,59 @@ def set_title(role: str) -> None:
     from setproctitle import setproctitle
 
     setproctitle(f"twinmesh: {role}")
+
+
+# --- pybullet's import banner -------------------------------------------------------------------
+
+
+@contextmanager
+def _descriptor_silenced(fd: int) -> Iterator[None]:
+    saved = os.dup(fd)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+        yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+        os.close(devnull)
+
+
+class _SilentLoader(importlib.abc.Loader):
+    def __init__(self, loader: Any):
+        self.loader = loader
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> Any:
+        with _descriptor_silenced(2):
+            return self.loader.create_module(spec)
+
+    def exec_module(self, module: Any) -> None:
+        with _descriptor_silenced(2):
+            self.loader.exec_module(module)
+
+
+class _QuietImports(importlib.abc.MetaPathFinder):
+    NAMES = frozenset({"pybullet"})
+
+    def find_spec(self, name: str, path: Any = None, target: Any = None) -> importlib.machinery.ModuleSpec | None:
+        if name not in self.NAMES or os.environ.get(SHOW_NATIVE) == "1":
+            return None
+        for finder in sys.meta_path:
+            if finder is self or not hasattr(finder, "find_spec"):
+                continue
+            spec = finder.find_spec(name, path, target)
+            if spec is not None:
+                if spec.loader is not None:
+                    spec.loader = _SilentLoader(spec.loader)
+                return spec
+        return None
+
+
+SHOW_NATIVE = "TWINMESH_SHOW_NATIVE_OUTPUT"  # "1" (`twinmesh -v`, inherited by every child): let pybullet speak
+
+
+def quiet_pybullet_import() -> None:
+    """pybullet prints its build time to stderr when it loads: not when twinmesh loads it (unless the
+    environment says SHOW_NATIVE=1, as `twinmesh -v` does for itself and its children)."""
+    if "pybullet" not in sys.modules and not any(isinstance(f, _QuietImports) for f in sys.meta_path):
+        sys.meta_path.insert(0, _QuietImports())

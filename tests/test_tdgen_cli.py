@@ -126,3 +126,23 @@ def test_a_ceiling_mount_given_as_tilt_or_as_quaternion_is_the_same_mount(tmp_pa
     assert (tmp_path / "tilt" / "points.csv").read_text() == (tmp_path / "quat" / "points.csv").read_text()
     both = _run(*common, "--out", tmp_path / "x", "--base-tilt", 90, 0, "--base-quat", 0, 0, 0, 1)
     assert both.exit_code == 2 and "--base-quat gives the whole orientation" in both.output
+
+
+def test_stderr_carries_only_twinmesh_s_own_lines_with_two_workers(tmp_path):
+    """pybullet's banner was printed once per worker process; a xacro error was said twice."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "devices", "tdgen", "ur10.urdf", "--samples", "2000", "--workers", "2",
+                           "--no-progress", "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "pybullet" not in done.stderr and "b3Warning" not in done.stderr, done.stderr
+    xacro = tmp_path / "bad.urdf.xacro"
+    xacro.write_text('<?xml version="1.0"?><robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="bad">'
+                     '<xacro:include filename="$(find nosuch_description)/urdf/arm.xacro"/><link name="base"/></robot>')
+    failed = subprocess.run([sys.executable, "-m", "devices", "tdgen", str(xacro), "--out", str(tmp_path / "x")],
+                            capture_output=True, text=True, timeout=120)
+    assert failed.returncode == 2
+    lines = failed.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].count("$(find nosuch_description)") == 1, failed.stderr  # said once
+    assert str(xacro) in lines[0] and "looked in" in lines[0] and "twinmesh-urdf" not in lines[0]

@@ -139,3 +139,41 @@ def test_airo_models_urs_with_drake_attributes_load_as_they_come(arm):
     assert "drake:" in path.read_text()
     robot = Robot.load(path)
     assert (robot.base_link, robot.ee_link, len(robot.joints)) == ("base_link", "tool0", 6)
+
+
+def _mesh_arm(folder: Path, uri: str) -> Path:
+    """A three-joint arm whose links are a mesh file named by `uri`, in `folder`."""
+    return arm_urdf(folder, geometry=f'<mesh filename="{uri}"/>')
+
+
+def test_relative_file_uris_are_the_urdfs_folder_whatever_the_current_directory(tmp_path, monkeypatch):
+    robot_dir = tmp_path / "robot"
+    (robot_dir / "meshes" / "visual").mkdir(parents=True)
+    trimesh.creation.box((0.04, 0.04, 0.2)).export(robot_dir / "meshes" / "visual" / "link.stl")
+    urdf = _mesh_arm(robot_dir, "file://meshes/visual/link.stl")
+    elsewhere = tmp_path / "elsewhere"
+    (elsewhere / "meshes" / "visual").mkdir(parents=True)
+    trimesh.creation.box((1, 1, 1)).export(elsewhere / "meshes" / "visual" / "link.stl")  # a decoy, 1 m
+    loaded = []
+    for cwd in (robot_dir, elsewhere, tmp_path):
+        monkeypatch.chdir(cwd)
+        robot = Robot.load(urdf)
+        loaded.append(robot.load_path.read_text())
+    assert loaded[0] == loaded[1] == loaded[2]
+    assert str(robot_dir / "meshes" / "visual" / "link.stl") in loaded[0] and str(elsewhere) not in loaded[0]
+
+
+def test_a_ros_package_path_entry_is_never_taken_for_a_package_it_is_not(tmp_path, monkeypatch):
+    root = tmp_path / "ws"
+    described = root / "src" / "description_folder"  # found by its package.xml's name, two levels down
+    (described / "meshes").mkdir(parents=True)
+    (described / "package.xml").write_text("<package><name>my_arm_description</name></package>")
+    trimesh.creation.box((0.04, 0.04, 0.2)).export(described / "meshes" / "link.stl")
+    (root / "meshes").mkdir()
+    trimesh.creation.box((1, 1, 1)).export(root / "meshes" / "link.stl")  # what the old lookup took
+    monkeypatch.setenv("ROS_PACKAGE_PATH", str(root))
+    monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)
+    found = Robot.load(_mesh_arm(tmp_path, "package://my_arm_description/meshes/link.stl"))
+    assert str(described / "meshes" / "link.stl") in found.load_path.read_text()
+    with pytest.raises(RobotError, match="package://other_description/meshes/link.stl not found"):
+        Robot.load(_mesh_arm(tmp_path, "package://other_description/meshes/link.stl"), )

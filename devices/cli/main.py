@@ -21,7 +21,7 @@ from mesh.cli.native_output import quiet_pybullet_import, separate_native_stdout
 from mesh.fabric.client import MeshClient
 from mesh.fabric.settings import DEFAULT_ENDPOINT, MeshSettings, router_listen
 from mesh.messages.scene import DEFAULT_SAMPLES
-from mesh.process import set_title
+from mesh.process import SHOW_NATIVE, set_title
 from mesh.wot.problem import Problem
 
 
@@ -113,8 +113,9 @@ def main(ctx: click.Context, prefix, connect, listen, mode, multicast, shared_me
          verbose) -> None:
     """twinmesh: a digital-twin lab for the Web of Things."""
     separate_native_stdout(show=verbose > 0)  # pybullet's C prints never mix into what a command prints
-    if not verbose:
-        quiet_pybullet_import()
+    if verbose:
+        os.environ[SHOW_NATIVE] = "1"  # for this process and every one it starts (tdgen's workers too)
+    quiet_pybullet_import()
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)],
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     secrets_dir = _secrets_dir(ctx, secure, secrets)

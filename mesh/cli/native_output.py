@@ -10,13 +10,11 @@ silences descriptor 2 while (and only while) the extension module loads.
 """
 from __future__ import annotations
 
-import importlib.abc
-import importlib.machinery
 import io
 import os
 import sys
-from contextlib import contextmanager
-from typing import Any, Iterator
+
+from mesh.process import quiet_pybullet_import  # noqa: F401 - the CLI's name for it
 
 
 def separate_native_stdout(show: bool = False) -> None:
@@ -37,51 +35,3 @@ def separate_native_stdout(show: bool = False) -> None:
                                   line_buffering=bool(old.line_buffering),
                                   write_through=getattr(old, "write_through", False))
 
-
-@contextmanager
-def _descriptor_silenced(fd: int) -> Iterator[None]:
-    saved = os.dup(fd)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, fd)
-        yield
-    finally:
-        os.dup2(saved, fd)
-        os.close(saved)
-        os.close(devnull)
-
-
-class _SilentLoader(importlib.abc.Loader):
-    def __init__(self, loader: Any):
-        self.loader = loader
-
-    def create_module(self, spec: importlib.machinery.ModuleSpec) -> Any:
-        with _descriptor_silenced(2):
-            return self.loader.create_module(spec)
-
-    def exec_module(self, module: Any) -> None:
-        with _descriptor_silenced(2):
-            self.loader.exec_module(module)
-
-
-class _QuietImports(importlib.abc.MetaPathFinder):
-    NAMES = frozenset({"pybullet"})
-
-    def find_spec(self, name: str, path: Any = None, target: Any = None) -> importlib.machinery.ModuleSpec | None:
-        if name not in self.NAMES:
-            return None
-        for finder in sys.meta_path:
-            if finder is self or not hasattr(finder, "find_spec"):
-                continue
-            spec = finder.find_spec(name, path, target)
-            if spec is not None:
-                if spec.loader is not None:
-                    spec.loader = _SilentLoader(spec.loader)
-                return spec
-        return None
-
-
-def quiet_pybullet_import() -> None:
-    """pybullet prints its build time to stderr when it loads: not when twinmesh loads it."""
-    if "pybullet" not in sys.modules and not any(isinstance(f, _QuietImports) for f in sys.meta_path):
-        sys.meta_path.insert(0, _QuietImports())

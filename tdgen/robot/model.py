@@ -117,7 +117,7 @@ class Robot:
         (`package://NAME/...`); `allowed_collisions` lists link pairs whose contact does not count (as
         an SRDF's disabled collisions do: meshes that overlap by design).
         """
-        path = resolve_urdf(urdf)
+        path = source = resolve_urdf(urdf)  # messages name `source`, the user's file, not an expanded copy
         if path.suffix == ".xacro":
             path = expand_xacro(path, packages)
         name, root, ujoints = _parse_urdf(path)
@@ -125,16 +125,16 @@ class Robot:
         links = {root} | set(by_child)
         for what, link in (("base link", base_link), ("end-effector link", ee)):
             if link is not None and link not in links:
-                raise RobotError(f"{path}: no link named {link!r} for the {what} (links: {', '.join(sorted(links))})")
+                raise RobotError(f"{source}: no link named {link!r} for the {what} (links: {', '.join(sorted(links))})")
         unknown = [n for n in (fixed or {}) if n not in ujoints or ujoints[n].type not in MOVABLE]
         if unknown:
-            raise RobotError(f"{path}: cannot hold {', '.join(unknown)}: not movable joints of the URDF "
+            raise RobotError(f"{source}: cannot hold {', '.join(unknown)}: not movable joints of the URDF "
                              f"(movable: {', '.join(n for n, j in ujoints.items() if j.type in MOVABLE)})")
         held = {n: v / 1000.0 if ujoints[n].type == "prismatic" else math.radians(v) for n, v in (fixed or {}).items()}
         allowed = tuple((str(a), str(b)) for a, b in allowed_collisions)
         strangers = sorted({link for pair in allowed for link in pair} - links)
         if strangers:
-            raise RobotError(f"{path}: no link named {', '.join(map(repr, strangers))} for an allowed collision "
+            raise RobotError(f"{source}: no link named {', '.join(map(repr, strangers))} for an allowed collision "
                              f"(links: {', '.join(sorted(links))})")
         base = base_link or root
         if ee is None:
@@ -142,18 +142,18 @@ class Robot:
         above = _path_to(base, by_child)
         chain = _path_to(ee, by_child)
         if chain[:len(above)] != above or (base != root and not any(j.parent == base for j in chain)):
-            raise RobotError(f"{path}: the end-effector link {ee!r} is not below the base link {base!r}")
+            raise RobotError(f"{source}: the end-effector link {ee!r} is not below the base link {base!r}")
         held.update({j.name: 0.0 for j in above if j.type in MOVABLE and j.mimic is None and j.name not in held})
         passive_names = list(passive_joints)
         unknown = [n for n in passive_names if n not in ujoints or ujoints[n].type not in MOVABLE]
         if unknown:
-            raise RobotError(f"{path}: passive joints {unknown} are not movable joints of the URDF")
+            raise RobotError(f"{source}: passive joints {unknown} are not movable joints of the URDF")
         if passive_names and passive is None:
-            raise RobotError(f"{path}: passive joints {passive_names} need a passive map")
+            raise RobotError(f"{source}: passive joints {passive_names} need a passive map")
         main = [j for j in chain[len(above):] if j.type in MOVABLE and j.mimic is None
                 and j.name not in passive_names and j.name not in held]
         if not main:
-            raise RobotError(f"{path}: no actuated joint between the base link {base!r} and {ee!r} "
+            raise RobotError(f"{source}: no actuated joint between the base link {base!r} and {ee!r} "
                              "(pick the arm's links with --base-link and --ee)")
         load_path = loadable_urdf(path, packages)
         indices, link_indices = _pybullet_indices(load_path)

@@ -21,7 +21,7 @@ from tdgen.robot.errors import RobotError
 
 
 def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None) -> Path:
-    """The file pybullet should load for `path`: itself, or (where it has `package://` meshes or
+    """The file pybullet should load for `path`: itself, or (where it has `package://` or `file://` meshes or
     undeclared XML prefixes) a copy with every mesh made absolute as ROS resolves it and the prefixes
     declared. A mesh that cannot be found is a RobotError naming it and where it was looked for."""
     text = path.read_text(encoding="utf-8", errors="replace")
@@ -30,7 +30,7 @@ def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None) -> Pat
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
         raise RobotError(f"{path}: {missing[0]}{more}; name package directories with --package-path NAME=DIR, "
                          "ROS_PACKAGE_PATH or AMENT_PREFIX_PATH")
-    if "package://" not in text and declared(text) == text:
+    if "package://" not in text and "file://" not in text and declared(text) == text:
         return path
     return _resolved_copy(path.name, declared(resolved))
 
@@ -58,11 +58,17 @@ def expand_xacro(path: Path, packages: Mapping[str, Path] | None = None) -> Path
         raise RobotError(f"{path}: a .xacro file needs the xacro package (pip install xacro), or expand it "
                          "first (xacro FILE > robot.urdf)") from None
 
+    found_packages: dict[str, Path] = {}
+    unfound: list[RobotError] = []  # xacro wraps what `find` raises in its own exception: said once, ours
+
     def find(name: str) -> str:
         found = package_dir(name, path.parent, packages)
         if found is None:
-            raise RobotError(f"{path}: $(find {name}): no package {name!r} (name it with --package-path "
-                             f"{name}=DIR, ROS_PACKAGE_PATH or AMENT_PREFIX_PATH)")
+            unfound.append(RobotError(f"{path}: $(find {name}): no package {name!r} (looked in: "
+                                      f"{_looked_in(name, path.parent, packages)}; name it with --package-path "
+                                      f"{name}=DIR, ROS_PACKAGE_PATH or AMENT_PREFIX_PATH)"))
+            raise unfound[-1]
+        found_packages[name] = found
         return str(found)
 
     original = substitution._eval_find
@@ -72,9 +78,19 @@ def expand_xacro(path: Path, packages: Mapping[str, Path] | None = None) -> Path
     except RobotError:
         raise
     except Exception as exc:  # xacro raises its own XacroException and plain errors alike
-        raise RobotError(f"{path}: xacro could not expand it ({type(exc).__name__}: {exc})") from None
+        if unfound:
+            raise unfound[0] from None
+        said = " ".join(str(exc).split())  # one line
+        raise RobotError(f"{path}: xacro could not expand it ({type(exc).__name__}: {said})") from None
     finally:
         substitution._eval_find = original
+    # the meshes as the xacro names them: relative ones from its own folder, package:// ones from where
+    # its $(find ...) found the package (the expanded copy lives elsewhere and knows neither)
+    text, missing = with_absolute_meshes(text, path.parent, {**(packages or {}), **found_packages})
+    if missing:
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        raise RobotError(f"{path}: {missing[0]}{more}; name package directories with --package-path NAME=DIR, "
+                         "ROS_PACKAGE_PATH or AMENT_PREFIX_PATH")
     return _resolved_copy(path.name.removesuffix(".xacro").removesuffix(".urdf") + ".urdf", text)
 
 
@@ -90,3 +106,15 @@ def declared(text: str) -> str:
         return text
     declarations = "".join(f' xmlns:{p}="urn:twinmesh:undeclared:{p}"' for p in undeclared)
     return re.sub(r"<robot\b", "<robot" + declarations, text, count=1)
+
+
+def _looked_in(name: str, near: Path, packages: Mapping[str, Path] | None) -> str:
+    """Where a package was looked for, for the message that says it was not found."""
+    from mesh.urdf_resources import package_dirs
+
+    places = [str(d) for d in package_dirs(name, packages)] + [f"upward from {near} for a folder {name}"]
+    if not os.environ.get("ROS_PACKAGE_PATH"):
+        places.append("ROS_PACKAGE_PATH (not set)")
+    if not os.environ.get("AMENT_PREFIX_PATH"):
+        places.append("AMENT_PREFIX_PATH (not set)")
+    return ", ".join(places)
