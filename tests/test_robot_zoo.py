@@ -52,11 +52,11 @@ ROBOTS = SHARE / "robots"
 
 # id: (URDF under robots/, Robot.load options, expected (base link, tip link, joints), what kind of arm)
 ZOO = {
-    "ur5": ("ur_description/urdf/ur5_robot.urdf", {}, ("world", "wrist_3_link", 6), "6-DoF industrial"),
+    "ur5": ("ur_description/urdf/ur5_robot.urdf", {}, ("world", "ee_link", 6), "6-DoF industrial"),
     "panda": ("panda_description/urdf/panda.urdf", {}, ("panda_link0", "panda_hand_tcp", 7),
               "7-DoF, fingers (one a mimic)"),
     "xarm7": ("xarm_description/urdf/xarm7.urdf", {}, ("world", "link_eef", 7), "7-DoF"),
-    "kinova": ("kinova_description/robots/kinova.urdf", {}, ("base", "j2s6s200_link_6", 6),
+    "kinova": ("kinova_description/robots/kinova.urdf", {}, ("base", "j2s6s200_end_effector", 6),
                "6-DoF, unlimited (continuous) joints"),
     "so100": ("so_arm_description/urdf/so100.urdf", {}, ("base", "gripper", 5), "5-DoF with a jaw"),
     "z1": ("z1_description/urdf/z1.urdf", {}, ("world", "gripperStator", 6), "6-DoF with a gripper joint"),

@@ -177,3 +177,42 @@ def test_a_ros_package_path_entry_is_never_taken_for_a_package_it_is_not(tmp_pat
     assert str(described / "meshes" / "link.stl") in found.load_path.read_text()
     with pytest.raises(RobotError, match="package://other_description/meshes/link.stl not found"):
         Robot.load(_mesh_arm(tmp_path, "package://other_description/meshes/link.stl"), )
+
+
+def _arm_with_frames(tmp_path: Path, frames: dict[str, str]) -> Path:
+    """The arm without its gripper, its last link carrying fixed frames at the given offsets ("x y z", m)."""
+    links = "".join(LINK.format(n, BOX) for n in ["base", "l1", "l2", "l3"]) + "".join(
+        f'<link name="{n}"/>' for n in frames)
+    joints = [JOINT.format("j1", "revolute", "base", "l1", "", ""), JOINT.format("j2", "revolute", "l1", "l2", "", ""),
+              JOINT.format("j3", "revolute", "l2", "l3", "", "")]
+    joints += [f'<joint name="{n}_mount" type="fixed"><parent link="l3"/><child link="{n}"/>'
+               f'<origin xyz="{xyz}"/></joint>' for n, xyz in frames.items()]
+    path = tmp_path / "frames.urdf"
+    path.write_text(f'<?xml version="1.0"?><robot name="arm">{links}{"".join(joints)}</robot>')
+    return path
+
+
+def test_the_tip_is_the_most_distal_frame_through_fixed_joints_a_tool_frame_first(tmp_path):
+    """A Panda's last link carries a flange and an end-effector frame: the tip used to stop before both."""
+    def tip(frames: dict[str, str], **options) -> str:
+        return Robot.load(_arm_with_frames(tmp_path, frames), **options).ee_link
+
+    assert tip({"link8": "0 0 0.107", "end_effector_frame": "0 0 0.21"}) == "end_effector_frame"
+    assert tip({"panda_flange": "0 0 0.107", "tool_frame": "0 0 0.3"}) == "tool_frame"
+    assert tip({"ee_link": "0 0.08 0", "tool0": "0 0.08 0"}) == "ee_link"  # one place: one tip (a UR's)
+    assert tip({"left_pad_mount": "0 0.02 0.1", "right_pad_mount": "0 -0.02 0.1"}) == "l3"  # a tool's own parts
+    with pytest.raises(RobotError, match=r"ends in 2 tool frames equally far apart \(tool_a, tool_b\): pick the tip "
+                                         r"with --ee LINK"):
+        tip({"tool_a": "0.1 0 0", "tool_b": "0 0 0.1"})
+    assert tip({"tool_a": "0.1 0 0", "tool_b": "0 0 0.1"}, ee="tool_b") == "tool_b"
+
+
+def test_the_chosen_base_and_tip_are_said_on_stderr(tmp_path):
+    from click.testing import CliRunner
+
+    from devices.cli.main import main
+
+    urdf = _arm_with_frames(tmp_path, {"flange": "0 0 0.1", "end_effector_frame": "0 0 0.2"})
+    result = CliRunner().invoke(main, ["tdgen", str(urdf), "--tip", "flange", "--samples", "500", "--workers", "1",
+                                       "--no-progress", "--out", str(tmp_path / "out")])
+    assert "arm chain base -> flange" in result.stderr and "arm chain" not in result.stdout, result.output

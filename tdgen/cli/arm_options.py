@@ -74,8 +74,9 @@ def arm_options(function: Callable) -> Callable:
         return function(*args, arm=arm, **kwargs)
 
     options = [
-        click.option("--ee", help="End-effector (tip) link [default: where the longest arm chain ends, before "
-                     "gripper and finger joints]."),
+        click.option("--ee", "--tip", "ee", metavar="LINK",
+                     help="The tip link [default: where the longest arm chain ends, before gripper and finger "
+                     "joints, on through fixed joints to the most distal frame, a flange or tool frame first]."),
         click.option("--base-link", help="Link the arm chain starts at [default: the URDF's root link]; joints "
                      "above it are held (at 0, or as --fix-joint says)."),
         click.option("--fix-joint", "fix_joint", multiple=True, metavar="NAME=VALUE",

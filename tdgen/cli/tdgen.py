@@ -65,7 +65,7 @@ def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir
     try:
         robot = arm.load(urdf)
         surroundings = load_scene(scene, scene_robot) if scene else None
-        click.echo(f"{robot.name}: {robot.describe_chain()}")
+        click.echo(f"{robot.name}: {robot.describe_chain()}", err=True)
         result = generate(robot, surroundings, samples, seed, Path(out_dir or f"td-{slug(robot.name)}"), base_url,
                           calibration, cast(Frame, frame), concave, progress=not no_progress, name=name,
                           thing_id=thing_id, workers=workers, calibration_model=cast(Model, calibration_model),

@@ -374,12 +374,50 @@ def _auto_ee(path: Path, base: str, joints: dict[str, UrdfJoint], held: set[str]
     if len(tips) > 1:
         raise RobotError(f"{path}: {len(tips)} arms of {best} joints start at {base!r}, ending at "
                          f"{', '.join(tips)}: pick one with --ee LINK (and --base-link LINK)")
-    link = tips[0]
-    while True:
+    return _distal_frame(path, tips[0], children, arm)
+
+
+TIP_WORDS = re.compile(r"flange|tool|tcp|end_?effector|ee(_|$)|tip")
+FINGER_WORDS = re.compile(r"finger|jaw|claw|thumb|knuckle")  # a gripper's body is a tool frame, its fingers not
+
+
+def _distal_frame(path: Path, link: str, children: Mapping[str, list[UrdfJoint]],
+                  arm: Callable[[UrdfJoint], bool]) -> str:
+    """The tip: from the arm's last moving link on through fixed joints (not into a gripper's fingers)
+    to the most distal frame. Where the fixed joints branch, the frames named like a flange or a tool
+    decide (a Panda's flange beside its end-effector frame: the farthest of them); where none is, the
+    branches are the tool's own parts and the arm ends where they split. Tool frames equally far but
+    elsewhere are an error listing them; at one place (a UR's ee_link and tool0) they are one tip."""
+    leaves: list[tuple[str, float, tuple[float, ...]]] = []
+
+    def walk(at: str, distance: float, where: tuple[float, ...]) -> None:
+        onward = children.get(at, [])
+        fixed = [j for j in onward if j.type == "fixed" and not FINGER_WORDS.search(f"{j.name} {j.child}".lower())]
+        if not fixed or any(arm(j) for j in onward):
+            leaves.append((at, distance, where))
+            return
+        for j in fixed:
+            walk(j.child, distance + math.dist(j.xyz, (0.0, 0.0, 0.0)), tuple(a + b for a, b in zip(where, j.xyz)))
+
+    if len(children.get(link, [])) == 0:
+        return link
+    while True:  # a single fixed line first (the old, common case)
         fixed = [j for j in children.get(link, []) if j.type == "fixed"]
         if len(fixed) != 1 or any(arm(j) for j in children.get(link, [])):
-            return link
+            break
         link = fixed[0].child
+    walk(link, 0.0, (0.0, 0.0, 0.0))
+    if len(leaves) == 1:
+        return leaves[0][0]
+    tools = [leaf for leaf in leaves if TIP_WORDS.search(leaf[0].lower())]
+    if not tools:
+        return link
+    farthest = max(d for _, d, _ in tools)
+    top = [leaf for leaf in tools if abs(leaf[1] - farthest) < 1e-9]
+    if len({tuple(round(v, 6) for v in where) for _, _, where in top}) > 1:
+        raise RobotError(f"{path}: the arm ends in {len(top)} tool frames equally far apart "
+                         f"({', '.join(name for name, _, _ in top)}): pick the tip with --ee LINK")
+    return min(name for name, _, _ in top)
 
 
 HAND_BRANCH = 4  # arm joints below a split, at most, for the branches to be a hand's fingers, not arms
