@@ -61,10 +61,12 @@ def _robot(robot: Robot | str | Path, ee: str | None) -> Robot:
     return robot if isinstance(robot, Robot) else Robot.load(robot, ee=ee)
 
 
-def _scene(scene: Surroundings | str | Path | None, mount: RobotPlacement | None, surface: bool) -> Surroundings:
-    """The scene as given (the robot moved to `mount` if given), else the robot on its mounting surface."""
+def _scene(scene: Surroundings | str | Path | None, mount: RobotPlacement | None, surface: bool,
+           reach: float | None = None) -> Surroundings:
+    """The scene as given (the robot moved to `mount` if given), else the robot on its mounting surface
+    (wider than the arm's `reach`)."""
     if scene is None:
-        return default_scene(mount, surface)
+        return default_scene(mount, surface, reach)
     loaded = scene if isinstance(scene, Surroundings) else load_scene(scene)
     return msgspec.structs.replace(loaded, robot=mount) if mount is not None else loaded
 
@@ -112,7 +114,8 @@ def generate(robot: Robot | str | Path, scene: Surroundings | str | Path | None 
     """
     thing = _thing_name(base_url, name)
     started = time.perf_counter()
-    robot, scene = _robot(robot, ee), _scene(scene, mount, surface)
+    robot = _robot(robot, ee)
+    scene = _scene(scene, mount, surface, robot.reach())
     thing = thing or slug(robot.name)
     calibration = _calibration(calibration, calibration_model, frame)
     timings: dict[str, float] = {}

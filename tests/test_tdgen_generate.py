@@ -176,3 +176,38 @@ def test_same_seed_gives_the_same_csv_whatever_the_worker_count(tmp_path):
     other = generate("ur10.urdf", "table-and-wall", 2500, seed=4, out_dir=tmp_path / "other", workers=1)
     assert one.files["points"].read_bytes() == two.files["points"].read_bytes()
     assert one.files["points"].read_bytes() != other.files["points"].read_bytes()
+
+
+BIG_ARM = """<?xml version="1.0"?>
+<robot name="big_arm">
+  <link name="base"><collision><geometry><cylinder radius="0.3" length="0.4"/></geometry>
+    <origin xyz="0 0 0.2"/></collision></link>
+  <link name="turret"><collision><origin xyz="0 0 0.3"/><geometry><box size="0.5 0.5 0.6"/></geometry></collision></link>
+  <link name="upper"><collision><origin xyz="0 0 0.75"/><geometry><box size="0.25 0.25 1.5"/></geometry></collision></link>
+  <link name="fore"><collision><origin xyz="0 0 0.8"/><geometry><box size="0.2 0.2 1.6"/></geometry></collision></link>
+  <link name="hand"><collision><origin xyz="0 0 0.15"/><geometry><box size="0.15 0.15 0.3"/></geometry></collision></link>
+  <joint name="a1" type="revolute"><parent link="base"/><child link="turret"/><origin xyz="0 0 0.4"/>
+    <axis xyz="0 0 1"/><limit lower="-3.1" upper="3.1" effort="1" velocity="1"/></joint>
+  <joint name="a2" type="revolute"><parent link="turret"/><child link="upper"/><origin xyz="0 0 0.3"/>
+    <axis xyz="0 1 0"/><limit lower="-2.6" upper="2.6" effort="1" velocity="1"/></joint>
+  <joint name="a3" type="revolute"><parent link="upper"/><child link="fore"/><origin xyz="0 0 1.5"/>
+    <axis xyz="0 1 0"/><limit lower="-2.6" upper="2.6" effort="1" velocity="1"/></joint>
+  <joint name="a4" type="revolute"><parent link="fore"/><child link="hand"/><origin xyz="0 0 1.6"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+</robot>
+"""
+
+
+def test_a_big_arm_stands_on_a_surface_wider_than_it_reaches_no_free_point_under_it(tmp_path):
+    """A 3 m industrial arm on the 4 m default slab had free points below the floor, past the slab's edge."""
+    urdf = tmp_path / "big_arm.urdf"
+    urdf.write_text(BIG_ARM)
+    robot = Robot.load(urdf)
+    assert robot.reach() > 3.0
+    result = generate(robot, None, 6000, seed=3, out_dir=tmp_path / "out", workers=1)
+    positions, collision = read_points_csv(result.files["points"])
+    free = positions[~collision]
+    assert len(free) > 500 and np.linalg.norm(free[:, :2], axis=1).max() > 2500  # it does reach past 2.5 m
+    assert free[:, 2].min() >= -1.0, free[:, 2].min()  # mm: nothing free under the surface it stands on
+    slab = next(b for b in json.loads(result.files["scene"].read_text())["bodies"] if b["name"] == "mounting-surface")
+    assert slab["size"][0] >= 2 * robot.reach()

@@ -210,6 +210,16 @@ class Robot:
         """The URDF joints (fixed ones included) from the root link to the end effector."""
         return _path_to(self.ee_link, {j.child: j for j in self._urdf_joints.values()})
 
+    def reach(self) -> float:
+        """An upper bound of how far the tip gets from the base link (m): the chain's joint offsets end to
+        end, each prismatic joint at its longest."""
+        total = 0.0
+        for j in self.chain():
+            total += math.dist(j.xyz, (0.0, 0.0, 0.0))
+            if j.type == "prismatic":
+                total += max(abs(j.lower or 0.0), abs(j.upper or 0.0))
+        return total
+
     def drives(self) -> dict[str, Drive]:
         """How every main, passive and mimic joint of the URDF gets its value."""
         main = {j.name: k for k, j in enumerate(self.joints)}

@@ -115,24 +115,34 @@ def empty_scene() -> Surroundings:
 
 
 MOUNT_SIZE, MOUNT_THICKNESS = 4.0, 0.02  # m
+MOUNT_MARGIN = 0.25  # m beyond the arm's reach (links are wider than their joint-to-joint lines)
 
 
-def default_scene(robot: RobotPlacement | None = None, surface: bool = True) -> Surroundings:
+def mount_size(reach: float | None) -> float:
+    """The mounting slab's side (m): 4 m, or wider for an arm that reaches farther, so that its edge is
+    beyond anything the arm can reach (a point under the floor past the slab's edge was counted free)."""
+    return MOUNT_SIZE if reach is None else max(MOUNT_SIZE, 2.0 * (reach + MOUNT_MARGIN))
+
+
+def default_scene(robot: RobotPlacement | None = None, surface: bool = True, reach: float | None = None
+                  ) -> Surroundings:
     """The robot where it is placed, on the surface it is mounted on (a floor for an upright arm, the
-    wall or the ceiling for a tilted one: a slab through the base, across the base's z axis), unless
-    `surface` is False (the robot alone)."""
+    wall or the ceiling for a tilted one: a slab through the base, across the base's z axis, as wide as
+    `mount_size(reach)`), unless `surface` is False (the robot alone)."""
     robot = robot or RobotPlacement()
+    size = mount_size(reach)
     if not surface:
         return msgspec.structs.replace(empty_scene(), robot=robot)
     from scipy.spatial.transform import Rotation
 
     down = Rotation.from_euler("xyz", robot.rpy, degrees=True).apply([0.0, 0.0, -MOUNT_THICKNESS / 2 - 0.001])
     centre = tuple(float(p + d) for p, d in zip(robot.position, down))
-    slab = BoxBody(name="mounting-surface", size=(MOUNT_SIZE, MOUNT_SIZE, MOUNT_THICKNESS), position=centre,  # type: ignore[arg-type]
+    slab = BoxBody(name="mounting-surface", size=(size, size, MOUNT_THICKNESS), position=centre,  # type: ignore[arg-type]
                    rpy=robot.rpy, rgba=(0.55, 0.55, 0.55, 1.0))
     return Surroundings(name="mounted", robot=robot, bodies=[slab],
-                 description="The robot on the surface it is mounted on (a 4 m slab through its base, across its "
-                             "z axis: the floor for an upright arm); self-collision and that surface are checked.")
+                 description=f"The robot on the surface it is mounted on (a {size:g} m slab through its base, across "
+                             "its z axis: the floor for an upright arm, wider than the arm reaches); self-collision and "
+                             "that surface are checked.")
 
 
 def scene_file(name_or_path: str | Path) -> Path:
