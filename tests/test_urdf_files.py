@@ -216,3 +216,40 @@ def test_the_chosen_base_and_tip_are_said_on_stderr(tmp_path):
     result = CliRunner().invoke(main, ["tdgen", str(urdf), "--tip", "flange", "--samples", "500", "--workers", "1",
                                        "--no-progress", "--out", str(tmp_path / "out")])
     assert "arm chain base -> flange" in result.stderr and "arm chain" not in result.stdout, result.output
+
+
+def _visual_only_arm(tmp_path: Path, geometry: str) -> Path:
+    """The arm with every link's geometry as a visual only (as hobby and classic arms often ship)."""
+    text = arm_urdf(tmp_path, geometry=geometry).read_text().replace("<collision>", "<visual>").replace(
+        "</collision>", "</visual>").replace('<axis xyz="0 1 0"/>', '<axis xyz="0 0 1"/>', 1).replace(
+        'lower="-1.5" upper="1.5"', 'lower="-3" upper="3"')  # not planar, and it can fold into the floor
+    path = tmp_path / "visual_only.urdf"
+    path.write_text(text)
+    return path
+
+
+def test_links_without_collision_geometry_collide_with_their_visual_one_and_say_so(tmp_path):
+    from tdgen.generate import generate
+    from tdgen.robot.workspace import read_points_csv
+
+    mesh_dir = tmp_path / "meshes"
+    mesh_dir.mkdir()
+    trimesh.creation.box((0.04, 0.04, 0.2)).export(mesh_dir / "link.stl")
+    robot = Robot.load(_visual_only_arm(tmp_path, '<mesh filename="meshes/link.stl"/>'))
+    assert set(robot.visual_collisions) == {"base", "l1", "l2", "l3", "palm", "finger_a", "finger_b"}
+    assert robot.notes() == ["7 link(s) have no collision geometry; their visual geometry is used for collision: "
+                             "base, l1, l2, l3, palm, finger_a, finger_b"]
+    positions, collision = read_points_csv(generate(robot, None, 1500, seed=1, out_dir=tmp_path / "out",
+                                                    workers=1).files["points"])
+    assert collision.any(), "the arm went through the floor and itself unseen"
+    assert positions[~collision][:, 2].min() >= -1.0  # mm: nothing free under the floor
+
+
+def test_a_urdf_without_any_geometry_is_refused_not_all_free(tmp_path):
+    bare = arm_urdf(tmp_path).read_text()
+    import re
+
+    path = tmp_path / "bare.urdf"
+    path.write_text(re.sub(r"<collision>.*?</collision>", "", bare))
+    with pytest.raises(RobotError, match=r"bare\.urdf: no link has collision or visual geometry"):
+        Robot.load(path)

@@ -255,7 +255,8 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
 
     robot = Robot.load(urdf, ee=ee, base_link=base_link, fixed=fixed,
                        packages={k: Path(v) for k, v in (packages or {}).items()}, allowed_collisions=allowed_collisions)
-    (announce or log.info)(f"{robot.name}: {robot.describe_chain()}")
+    for line in [robot.describe_chain(), *robot.notes()]:
+        (announce or log.info)(f"{robot.name}: {line}")
     the_scene = load_scene(scene, scene_robot) if scene else default_scene(base, surface, robot.reach())
     placement = base or the_scene.robot
     where = Base(placement.position, placement.yaw, placement.roll, placement.pitch)

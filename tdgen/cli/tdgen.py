@@ -66,6 +66,8 @@ def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir
         robot = arm.load(urdf)
         surroundings = load_scene(scene, scene_robot) if scene else None
         click.echo(f"{robot.name}: {robot.describe_chain()}", err=True)
+        for note in robot.notes():
+            click.echo(f"{robot.name}: {note}", err=True)
         result = generate(robot, surroundings, samples, seed, Path(out_dir or f"td-{slug(robot.name)}"), base_url,
                           calibration, cast(Frame, frame), concave, progress=not no_progress, name=name,
                           thing_id=thing_id, workers=workers, calibration_model=cast(Model, calibration_model),

@@ -104,6 +104,7 @@ class Robot:
     load_path: Path | None = None           # what pybullet loads: the URDF, or a copy with meshes resolved
     packages: dict[str, str] = field(default_factory=dict)  # ROS package directories it was loaded with
     allowed_collisions: tuple[tuple[str, str], ...] = ()    # link pairs whose contact is not a collision
+    visual_collisions: tuple[str, ...] = ()  # links without collision geometry: their visual geometry is used
 
     @classmethod
     def load(cls, urdf: str | Path, ee: str | None = None, passive_joints: Sequence[str] = (),
@@ -155,12 +156,13 @@ class Robot:
         if not main:
             raise RobotError(f"{source}: no actuated joint between the base link {base!r} and {ee!r} "
                              "(pick the arm's links with --base-link and --ee)")
-        load_path = loadable_urdf(path, packages)
+        load_path, borrowed = loadable_urdf(path, packages, shown=source)
         indices, link_indices = _pybullet_indices(load_path)
         joints = [Joint(j.name, j.type, indices[j.name], *_limits(j), _velocity(j)) for j in main]
         return cls(path, name, joints, passive_names, ee, link_indices[ee], passive, ujoints, indices,
                    root_link=root, base_link=base, held=held, load_path=load_path,
-                   packages={k: str(v) for k, v in (packages or {}).items()}, allowed_collisions=allowed)
+                   packages={k: str(v) for k, v in (packages or {}).items()}, allowed_collisions=allowed,
+                   visual_collisions=tuple(borrowed))
 
     # --- limits and units -------------------------------------------------------------------
     def lows(self) -> np.ndarray:
@@ -197,6 +199,13 @@ class Robot:
     def _user_value(self, joint: str, value: float) -> float:
         """deg for a revolute or continuous joint, mm for a prismatic one."""
         return value * 1000.0 if self._urdf_joints[joint].type == "prismatic" else math.degrees(value)
+
+    def notes(self) -> list[str]:
+        """What a user should know about how the URDF was taken (said once, on stderr or in the log)."""
+        if not self.visual_collisions:
+            return []
+        return [f"{len(self.visual_collisions)} link(s) have no collision geometry; their visual geometry is "
+                f"used for collision: {', '.join(self.visual_collisions)}"]
 
     def describe_chain(self) -> str:
         """The chain in one line, for people: base and tip links, the joints in between, held joints."""

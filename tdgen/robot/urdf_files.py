@@ -13,6 +13,7 @@ import hashlib
 import os
 import re
 import tempfile
+import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -20,19 +21,58 @@ from mesh.urdf_resources import package_dir, with_absolute_meshes
 from tdgen.robot.errors import RobotError
 
 
-def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None) -> Path:
-    """The file pybullet should load for `path`: itself, or (where it has `package://` or `file://` meshes or
-    undeclared XML prefixes) a copy with every mesh made absolute as ROS resolves it and the prefixes
-    declared. A mesh that cannot be found is a RobotError naming it and where it was looked for."""
+def visual_collisions(text: str) -> tuple[str, list[str]]:
+    """The URDF with a `<collision>` made from the `<visual>` of every link that has a visual mesh but no
+    collision geometry (classic and hobby arms often ship so: counted as nothing, the arm went through
+    the floor and itself unseen), and those links' names; where the URDF has no collision geometry at
+    all, every visual counts, primitives too (elsewhere a lone sphere or box is a frame's marker). A URDF with no collision geometry at
+    all and no visual one to borrow is a RobotError: every sample would be free."""
+    root = ET.fromstring(text)
+    borrowed = []
+    anything = any(link.find("collision") is not None for link in root.iter("link"))
+    for link in root.iter("link"):
+        if link.find("collision") is not None:
+            continue
+        visuals = [v for v in link.findall("visual") if v.find("geometry") is not None]
+        if anything:  # beside collision shapes, a primitive-only visual is a marker (a joint's sphere), not a body
+            visuals = [v for v in visuals if v.find("geometry/mesh") is not None]
+        for visual in visuals:
+            collision = ET.SubElement(link, "collision")
+            for part in ("origin", "geometry"):
+                found = visual.find(part)
+                if found is not None:
+                    collision.append(found)
+        if visuals:
+            borrowed.append(link.get("name", "?"))
+    if not borrowed:
+        return text, []
+    return ET.tostring(root, encoding="unicode"), borrowed
+
+
+def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None, shown: Path | None = None
+                  ) -> tuple[Path, list[str]]:
+    """The file pybullet should load for `path`, and the links whose visual geometry stands in for the
+    collision geometry they lack (`visual_collisions`): `path` itself, or (where it has `package://` or
+    `file://` meshes, undeclared XML prefixes or borrowed collisions) a copy with every mesh made absolute
+    as ROS resolves it, the prefixes declared and the collisions added. A mesh that cannot be found is a
+    RobotError naming it and where it was looked for; messages name `shown` (the user's file) if given."""
+    name = shown or path
     text = path.read_text(encoding="utf-8", errors="replace")
     resolved, missing = with_absolute_meshes(text, path.parent, packages)
     if missing:
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
-        raise RobotError(f"{path}: {missing[0]}{more}; name package directories with --package-path NAME=DIR, "
+        raise RobotError(f"{name}: {missing[0]}{more}; name package directories with --package-path NAME=DIR, "
                          "ROS_PACKAGE_PATH or AMENT_PREFIX_PATH")
-    if "package://" not in text and "file://" not in text and declared(text) == text:
-        return path
-    return _resolved_copy(path.name, declared(resolved))
+    try:
+        complete, borrowed = visual_collisions(declared(resolved))
+    except ET.ParseError as e:
+        raise RobotError(f"{name}: not a URDF pybullet can read ({e})") from None
+    if "<collision" not in complete:
+        raise RobotError(f"{name}: no link has collision or visual geometry: every configuration would count as "
+                         "free; give the links <collision> shapes")
+    if not borrowed and "package://" not in text and "file://" not in text and declared(text) == text:
+        return path, []
+    return _resolved_copy(path.name, complete if borrowed else declared(resolved)), borrowed
 
 
 def _resolved_copy(name: str, text: str) -> Path:
