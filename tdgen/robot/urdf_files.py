@@ -25,8 +25,8 @@ def visual_collisions(text: str) -> tuple[str, list[str]]:
     """The URDF with a `<collision>` made from the `<visual>` of every link that has a visual mesh but no
     collision geometry (classic and hobby arms often ship so: counted as nothing, the arm went through
     the floor and itself unseen), and those links' names; where the URDF has no collision geometry at
-    all, every visual counts, primitives too (elsewhere a lone sphere or box is a frame's marker). A URDF with no collision geometry at
-    all and no visual one to borrow is a RobotError: every sample would be free."""
+    all, every visual counts, primitives too (elsewhere a lone sphere or box is a frame's marker).
+    `loadable_urdf` refuses a URDF left without any collision geometry: every sample would be free."""
     root = ET.fromstring(text)
     borrowed = []
     anything = any(link.find("collision") is not None for link in root.iter("link"))
