@@ -135,10 +135,8 @@ def generate(robot: Robot | str | Path, scene: Surroundings | str | Path | None 
         low, high = bounds(free)
         hull = convex_hull(free)
     except WorkspaceError as e:
-        if any(b.name == "mounting-surface" for b in scene.bodies) and float(sampled.collision.mean()) > 0.99:
-            raise WorkspaceError(f"{e} (without a scene the robot stands on a surface through its base, across its "
-                                 "z axis: --no-surface for an arm whose base link is not where it is mounted, such "
-                                 "as a humanoid's shoulder)") from None
+        if float(sampled.collision.mean()) > 0.99:
+            raise WorkspaceError(f"{e}{start_pose_hint(robot, scene)}") from None
         raise
     timings["hull"] = time.perf_counter() - t
     concave_solid = None
@@ -180,6 +178,26 @@ def generate(robot: Robot | str | Path, scene: Surroundings | str | Path | None 
 
 MOSTLY_COLLIDING = 0.5  # share of colliding samples above which a workspace is worth a warning
 PAIR_SAMPLES = 200      # colliding samples asked which links touch
+
+
+def start_pose_hint(robot: Robot, scene: Surroundings) -> str:
+    """Why (nearly) every sample collides, when the robot collides already where it starts (every joint at
+    0, within its limits): the pairs that touch there, and the option that allows exactly each pair."""
+    from tdgen.robot.collision import CollisionWorld
+
+    world = CollisionWorld(robot, scene)
+    try:
+        pairs = world.what_collides(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))
+    finally:
+        world.close()
+    if pairs:
+        options = " ".join(f"--allow-collision {pair.replace(' / ', '/')}" for pair in pairs[:4])
+        return (f"; at its start pose (every joint at 0) it already collides: {', '.join(pairs[:4])}. If that "
+                f"contact is by design, allow exactly that: {options}")
+    if any(b.name == "mounting-surface" for b in scene.bodies):
+        return ("; without a scene the robot stands on a surface through its base, across its z axis: "
+                "--no-surface for an arm whose base link is not where it is mounted")
+    return ""
 
 
 def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples) -> list[str]:

@@ -253,3 +253,27 @@ def test_a_urdf_without_any_geometry_is_refused_not_all_free(tmp_path):
     path.write_text(re.sub(r"<collision>.*?</collision>", "", bare))
     with pytest.raises(RobotError, match=r"bare\.urdf: no link has collision or visual geometry"):
         Robot.load(path)
+
+
+def test_a_start_pose_touching_the_mounting_surface_names_the_pair_and_allowing_it_works(tmp_path):
+    """A Panda variant's link1 collision sphere reaches below its base: the refusal suggested --no-surface
+    (for a "humanoid"), and --allow-collision panda_link1/mounting-surface was refused."""
+    from click.testing import CliRunner
+
+    from devices.cli.main import main
+
+    text = arm_urdf(tmp_path).read_text().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 0 1"/>', 1).replace(
+        '<link name="l1"><collision><geometry><box size="0.04 0.04 0.2"/></geometry></collision></link>',
+        '<link name="l1"><collision><origin xyz="0 0 -0.2"/><geometry><sphere radius="0.25"/></geometry>'
+        '</collision></link>').replace('lower="-1.5" upper="1.5"', 'lower="-3" upper="3"')
+    urdf = tmp_path / "sphere_below.urdf"
+    urdf.write_text(text)
+    args = ["tdgen", str(urdf), "--samples", "800", "--workers", "1", "--no-progress"]
+    refused = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "a")])
+    assert refused.exit_code == 2, refused.output
+    assert "l1 / mounting-surface" in refused.stderr and "--allow-collision l1/mounting-surface" in refused.stderr
+    assert str(urdf) in refused.stderr and "twinmesh-urdf" not in refused.stderr and "--no-surface" not in refused.stderr
+    allowed = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "b"), "--allow-collision", "l1/mounting-surface"])
+    assert allowed.exit_code == 0, allowed.output
+    unknown = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "c"), "--allow-collision", "l1/nothing-here"])
+    assert unknown.exit_code == 2 and "'nothing-here'" in unknown.stderr and "mounting-surface" in unknown.stderr

@@ -73,7 +73,9 @@ def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir
                           thing_id=thing_id, workers=workers, calibration_model=cast(Model, calibration_model),
                           security=SECURITY[security], mount=mount, surface=surface)
     except (*USER_ERRORS, ValueError) as exc:
-        raise usage_exit(str(exc)) from None
+        said = str(exc)
+        raise usage_exit(said if said.startswith(urdf) or str(Path(urdf).resolve()) in said.split(":")[0]
+                         else f"{urdf}: {said}") from None
     low, high = result.low_mm, result.high_mm
     click.echo(f"{robot.name}: {result.samples} samples, {result.collision_free} collision-free "
                f"({result.timings['sampling']:.1f} s sampling)")

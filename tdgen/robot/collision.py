@@ -56,6 +56,7 @@ class CollisionWorld:
         self._excluded = self._adjacent_pairs(group)
         self._excluded |= self._touching_by_design()
         self._excluded |= self._allowed_pairs()
+        self._allowed_bodies = self._allowed_body_pairs(ids)
         for a, b in self._excluded:  # contacts `_colliding` ignores need not be computed (a Panda checks ~1/3 faster)
             if a < b:
                 pb.setCollisionFilterPair(self.body, self.body, a, b, 0, physicsClientId=self.client)
@@ -110,6 +111,23 @@ class CollisionWorld:
         return {p for a, b in self.robot.allowed_collisions if a in index and b in index
                 for p in ((index[a], index[b]), (index[b], index[a]))}
 
+    def _allowed_body_pairs(self, ids: list[int]) -> set[tuple[int, int]]:
+        """(robot link, scene body) pairs whose contact does not count (`--allow-collision LINK/BODY`: a
+        link that touches the surface the robot is mounted on by design)."""
+        count = self._pb.getNumJoints(self.body, physicsClientId=self.client)
+        links = {self._link_name(i): i for i in range(-1, count)}
+        bodies = {name: i for i, name in self._scene_names.items()}
+        out = set()
+        for a, b in self.robot.allowed_collisions:
+            if a in links and b in links:
+                continue
+            link, body = (a, b) if a in links else (b, a)
+            if body not in bodies:
+                raise ValueError(f"no link or scene body named {body!r} for the allowed collision {a}/{b} (scene "
+                                 f"bodies: {', '.join(sorted(bodies)) or 'none'})")
+            out.add((links[link], bodies[body]))
+        return out
+
     def _contacts(self) -> list[tuple[tuple[int, int], int]]:
         """((robot link, other link), other body) for every penetrating contact of the robot."""
         pb = self._pb
@@ -128,7 +146,7 @@ class CollisionWorld:
             if other == self.body:
                 if (link, other_link) not in self._excluded:
                     return True
-            elif link not in self._fixed_to_base:
+            elif link not in self._fixed_to_base and (link, other) not in self._allowed_bodies:
                 return True
         return False
 
@@ -217,7 +235,7 @@ class CollisionWorld:
         for (link, other_link), other in self._contacts():
             if other == self.body and (link, other_link) in self._excluded:
                 continue
-            if other != self.body and link in self._fixed_to_base:
+            if other != self.body and (link in self._fixed_to_base or (link, other) in self._allowed_bodies):
                 continue
             mine = self._link_name(link)
             theirs = self._link_name(other_link) if other == self.body else self._scene_names.get(other, f"body {other}")

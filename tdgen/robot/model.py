@@ -133,10 +133,11 @@ class Robot:
                              f"(movable: {', '.join(n for n, j in ujoints.items() if j.type in MOVABLE)})")
         held = {n: v / 1000.0 if ujoints[n].type == "prismatic" else math.radians(v) for n, v in (fixed or {}).items()}
         allowed = tuple((str(a), str(b)) for a, b in allowed_collisions)
-        strangers = sorted({link for pair in allowed for link in pair} - links)
-        if strangers:
+        strangers = sorted({a if a not in links else b for a, b in allowed if a not in links and b not in links}
+                           | {n for a, b in allowed if a not in links and b not in links for n in (a, b)})
+        if strangers:  # a pair of a link and a scene body (LINK/mounting-surface) is checked with the scene
             raise RobotError(f"{source}: no link named {', '.join(map(repr, strangers))} for an allowed collision "
-                             f"(links: {', '.join(sorted(links))})")
+                             f"(a pair names a link, and a link or a scene body; links: {', '.join(sorted(links))})")
         base = base_link or root
         if ee is None:
             ee = _auto_ee(path, base, ujoints, set(held))
