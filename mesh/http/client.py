@@ -201,15 +201,7 @@ class SseSubscription:
     def stop(self) -> None:
         """Shut the socket down so that the reading thread wakes up, and wait for it."""
         self._stopping = True
-        stream = self._response.extensions.get("network_stream") if self._response is not None else None
-        sock = stream.get_extra_info("socket") if stream is not None else None
-        if sock is not None:
-            try:
-                sock.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout=5)
+        _wake_and_join(self._response, self._thread)
 
 
 class LongPollSubscription:
@@ -248,12 +240,17 @@ class LongPollSubscription:
 
     def stop(self) -> None:
         self._stopping = True
-        stream = self._response.extensions.get("network_stream") if self._response is not None else None
-        sock = stream.get_extra_info("socket") if stream is not None else None
-        if sock is not None:
-            try:
-                sock.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout=5)
+        _wake_and_join(self._response, self._thread)
+
+
+def _wake_and_join(response: httpx.Response | None, thread: threading.Thread) -> None:
+    """Shut a streaming response's socket down so that the thread reading it wakes up; wait for it."""
+    stream = response.extensions.get("network_stream") if response is not None else None
+    sock = stream.get_extra_info("socket") if stream is not None else None
+    if sock is not None:
+        try:
+            sock.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+    if threading.current_thread() is not thread:
+        thread.join(timeout=5)

@@ -162,6 +162,17 @@ def form_index(td: dict, kind: str, name: str, op: str, subprotocol: str | None 
     raise LookupError(f"no {op} form{f' with subprotocol {subprotocol}' if subprotocol else ''} in {kind}.{name}")
 
 
+def _ready_line(process: subprocess.Popen, timeout: float) -> tuple[str, dict]:
+    """The first line a node servient prints on stdout (within `timeout` s), and it as JSON ({} if not)."""
+    lines: queue.Queue[str] = queue.Queue()
+    threading.Thread(target=lambda: lines.put(process.stdout.readline()), daemon=True).start()
+    try:
+        line = lines.get(timeout=timeout)
+    except queue.Empty:
+        line = ""
+    return line, json.loads(line) if line.startswith("{") else {}
+
+
 @dataclass(frozen=True)
 class Baseline:
     """A running servient-baseline.mjs."""
@@ -190,13 +201,7 @@ def start_baseline_servient(port: int = 0, credentials: dict | None = None,
         process = subprocess.Popen(command, cwd=INTEROP_DIR, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                    stderr=stderr, text=True)
         try:
-            lines: queue.Queue[str] = queue.Queue()
-            threading.Thread(target=lambda: lines.put(process.stdout.readline()), daemon=True).start()
-            try:
-                line = lines.get(timeout=ready_timeout)
-            except queue.Empty:
-                line = ""
-            ready = json.loads(line) if line.startswith("{") else {}
+            line, ready = _ready_line(process, ready_timeout)
             if not ready.get("ready"):
                 process.kill()
                 process.wait()
@@ -247,13 +252,7 @@ class RealLab:
             command += ["--tls-key", str(self.tls[0]), "--tls-cert", str(self.tls[1])]
         process = subprocess.Popen(command, cwd=INTEROP_DIR, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                    stderr=self._stderr, text=True)
-        lines: queue.Queue[str] = queue.Queue()
-        threading.Thread(target=lambda: lines.put(process.stdout.readline()), daemon=True).start()
-        try:
-            line = lines.get(timeout=self.ready_timeout)
-        except queue.Empty:
-            line = ""
-        ready = json.loads(line) if line.startswith("{") else {}
+        line, ready = _ready_line(process, self.ready_timeout)
         if not ready.get("ready"):
             process.kill()
             process.wait()
