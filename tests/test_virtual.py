@@ -257,3 +257,40 @@ def test_what_cannot_be_served_starts_nothing_and_says_why_in_one_line(lab, serv
     assert taken.returncode == 1 and "light-left" in taken.stderr and "already on the mesh" in taken.stderr
     missing = lab.cli("virtual", "d=/no/such/td.json")
     assert missing.returncode == 2 and "/no/such/td.json" in missing.stderr
+
+
+def test_read_only_numbers_drift_within_their_bounds_and_a_bridged_name_is_named(lab, tmp_path):
+    name, path = next((n, p) for n, p in CORPUS.items() if p.name == "virtual_PanTilt1.json")
+    td = original(name)
+    numeric = {k: v for k, v in td["properties"].items() if v.get("readOnly") and v.get("type") in ("number", "integer")}
+    assert numeric, "the thesis's pan-tilt has read-only angles"
+    process = lab.spawn("virtual", f"drifting={path}", "--drift", "--seed", "2")
+    try:
+        lab.wait_things({"drifting"})
+        seen = {k: set() for k in numeric}
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not all(len(v) > 2 for v in seen.values()):
+            for k in numeric:
+                value = httpx.get(f"{lab.http}/drifting/properties/{k}", timeout=30).json()
+                assert invalid(value, schema_of(numeric[k])) is None, (k, value)
+                seen[k].add(value)
+            time.sleep(0.5)
+        assert all(len(v) > 2 for v in seen.values()), seen
+        clash = lab.cli("virtual", f"drifting={path}")
+        assert clash.returncode == 1 and "drifting" in clash.stderr and "already on the mesh" in clash.stderr
+    finally:
+        process.terminate()
+        process.wait(timeout=30)
+
+
+def test_up_thing_adds_a_virtual_thing_to_the_lab_it_starts(tmp_path):
+    path = next(p for p in CORPUS.values() if p.name == "virtual_light_left.td.json")
+    lab = start_lab(tmp_path, "lights", things={"thesis-light"}, extra_args=("--thing", f"thesis-light={path}"))
+    try:
+        assert "thesis-light" in lab.cli("things").stdout.split()
+        assert httpx.put(f"{lab.http}/thesis-light/properties/lightState", json=True, timeout=30).status_code == 204
+        assert httpx.get(f"{lab.http}/thesis-light/properties/lightState", timeout=30).json() is True
+        taken = lab.cli("up", "lights", "--thing", f"light-left={path}", "--no-http", "--no-view")
+        assert taken.returncode == 2 and "light-left" in taken.stderr and "already has" in taken.stderr
+    finally:
+        lab.stop()

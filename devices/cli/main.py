@@ -1,6 +1,7 @@
 """The `twinmesh` command: the one composition root (it alone may import devices and tdgen)."""
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sys
@@ -357,8 +358,13 @@ def virtual(settings: MeshSettings, given: tuple[str, ...], seed: int | None, dr
     with mesh_client(settings) as c:
         for spec in specs:
             if c.is_alive(spec.name, timeout=2.0):
-                raise CommandFailed(f"{spec.name}: a Thing of that name is already on the mesh (a device, a bridged "
-                                    f"remote Thing or another virtual one); give {spec.source} another NAME")
+                try:
+                    title = json.loads(c.td_bytes(spec.name)).get("title")
+                except (Problem, ValueError):
+                    title = None
+                there = f" as {title!r}" if title and title != spec.name else ""
+                raise CommandFailed(f"{spec.name}: a Thing of that name is already on the mesh{there} (a device, a "
+                                    f"bridged remote Thing or another virtual one); give {spec.source} another NAME")
     stop = commands.install_stop_handlers()
 
     def ready() -> None:
