@@ -399,6 +399,9 @@ def _guard_real(specs: list[ProcessSpec], scene: str, real: tuple[str, ...], acc
         if remote.name not in guardable:
             raise usage_exit(f"--real {remote.name}: in the scene {scene!r} the devices that can guard a real one are "
                              f"{', '.join(sorted(guardable))}")
+    if "ur10" in pairs:
+        raise usage_exit("--real-calibration ur10: a robot Thing's moves go to the real arm in its TD's frame, which "
+                         "is the real robot's when the twin has a calibration (twinmesh robot --calibration CSV)")
     unknown = sorted(set(pairs) - {r.name for r in remotes})
     if unknown:
         raise usage_exit(f"--real-calibration {unknown[0]}: no --real {unknown[0]}=URL to calibrate")
