@@ -192,12 +192,22 @@ def start_pose_hint(robot: Robot, scene: Surroundings) -> str:
         world.close()
     if pairs:
         options = " ".join(f"--allow-collision {pair.replace(' / ', '/')}" for pair in pairs[:4])
+        surface = (" (or, as its tip hangs below its base link at that pose, the base is not where it is mounted, "
+                   "a humanoid's shoulder say: --no-surface)" if _hangs(robot) and any(
+                       p.endswith(" / mounting-surface") for p in pairs) else "")
         return (f"; at its start pose (every joint at 0) it already collides: {', '.join(pairs[:4])}. If that "
-                f"contact is by design, allow exactly that: {options}")
+                f"contact is by design, allow exactly that: {options}{surface}")
     if any(b.name == "mounting-surface" for b in scene.bodies):
         return ("; without a scene the robot stands on a surface through its base, across its z axis: "
                 "--no-surface for an arm whose base link is not where it is mounted")
     return ""
+
+
+def _hangs(robot: Robot) -> bool:
+    """Is the tip below the base link at the start pose (an arm hanging from a shoulder, not standing)?"""
+    from tdgen.robot.kinematics import ForwardKinematics
+
+    return bool(ForwardKinematics(robot).positions(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))[2] < 0)
 
 
 def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples) -> list[str]:

@@ -120,8 +120,12 @@ def test_a_mostly_colliding_workspace_is_said_and_allowed_pairs_free_it(tmp_path
     freer = generate(allowed, None, 800, seed=0, out_dir=tmp_path / "b", workers=1)
     assert freer.collision_free > plain.collision_free
     assert not any("collides at rest" in w for w in freer.warnings)
-    with pytest.raises(RobotError, match="no link named 'nope' for an allowed collision"):
-        Robot.load(urdf, ee="left_wrist", allowed_collisions=[("nope", "torso")])
+    with pytest.raises(RobotError, match="no link named 'nope', 'nowhere' for an allowed collision"):
+        Robot.load(urdf, ee="left_wrist", allowed_collisions=[("nope", "nowhere")])
+    # a link and a name that is no link: a scene body, looked for in the scene
+    with pytest.raises(ValueError, match="no link or scene body named 'nope'.*scene bodies: mounting-surface"):
+        generate(Robot.load(urdf, ee="left_wrist", allowed_collisions=[("nope", "torso")]), None, 100, seed=0,
+                 out_dir=tmp_path / "c", workers=1)
 
 
 def _pybullet_tip(robot: Robot, q: np.ndarray) -> np.ndarray:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from tdgen.generate import generate
 from tdgen.robot.kinematics import ForwardKinematics
 from tdgen.robot.model import ROBOTS_DIR, Robot, RobotError
 
@@ -251,8 +252,10 @@ def test_a_urdf_without_any_geometry_is_refused_not_all_free(tmp_path):
 
     path = tmp_path / "bare.urdf"
     path.write_text(re.sub(r"<collision>.*?</collision>", "", bare))
+    robot = Robot.load(path)  # kinematics and IK need no geometry: it loads
+    assert robot.ee_link
     with pytest.raises(RobotError, match=r"bare\.urdf: no link has collision or visual geometry"):
-        Robot.load(path)
+        generate(robot, None, 300, seed=0, out_dir=tmp_path / "out", workers=1)
 
 
 def test_a_start_pose_touching_the_mounting_surface_names_the_pair_and_allowing_it_works(tmp_path):

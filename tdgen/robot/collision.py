@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from tdgen.robot.errors import RobotError
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import Surroundings, build_into
 
@@ -28,6 +29,7 @@ class CollisionWorld:
 
         self._pb = pb
         self.robot = robot
+        self.scene = scene
         self.client = pb.connect(pb.DIRECT)
         try:
             ids = build_into(scene, self.client)
@@ -38,8 +40,13 @@ class CollisionWorld:
         except Exception:
             pb.disconnect(self.client)
             raise
+        count = pb.getNumJoints(self.body, physicsClientId=self.client)
+        if not any(pb.getCollisionShapeData(self.body, i, physicsClientId=self.client) for i in range(-1, count)):
+            pb.disconnect(self.client)
+            raise RobotError(f"{robot.source or robot.urdf_path}: no link has collision or visual geometry: every configuration would "
+                             "count as free; give the links <collision> shapes")
         names = {pb.getJointInfo(self.body, i, physicsClientId=self.client)[1].decode(): i
-                 for i in range(pb.getNumJoints(self.body, physicsClientId=self.client))}
+                 for i in range(count)}
         drives = robot.drives()
         self._indices = [names[n] for n in drives]
         # every driven joint as multiplier * source + offset, vectorised (`Robot.joint_values`, without

@@ -105,6 +105,7 @@ class Robot:
     packages: dict[str, str] = field(default_factory=dict)  # ROS package directories it was loaded with
     allowed_collisions: tuple[tuple[str, str], ...] = ()    # link pairs whose contact is not a collision
     visual_collisions: tuple[str, ...] = ()  # links without collision geometry: their visual geometry is used
+    source: Path | None = None               # the user's file (a .xacro, not its expansion): what messages name
 
     @classmethod
     def load(cls, urdf: str | Path, ee: str | None = None, passive_joints: Sequence[str] = (),
@@ -163,7 +164,7 @@ class Robot:
         return cls(path, name, joints, passive_names, ee, link_indices[ee], passive, ujoints, indices,
                    root_link=root, base_link=base, held=held, load_path=load_path,
                    packages={k: str(v) for k, v in (packages or {}).items()}, allowed_collisions=allowed,
-                   visual_collisions=tuple(borrowed))
+                   visual_collisions=tuple(borrowed), source=source)
 
     # --- limits and units -------------------------------------------------------------------
     def lows(self) -> np.ndarray:

@@ -26,7 +26,8 @@ def visual_collisions(text: str) -> tuple[str, list[str]]:
     collision geometry (classic and hobby arms often ship so: counted as nothing, the arm went through
     the floor and itself unseen), and those links' names; where the URDF has no collision geometry at
     all, every visual counts, primitives too (elsewhere a lone sphere or box is a frame's marker).
-    `loadable_urdf` refuses a URDF left without any collision geometry: every sample would be free."""
+    A URDF left without any collision geometry still loads (kinematics and IK need none); the collision
+    test refuses it (`CollisionWorld`): every sample would be free."""
     root = ET.fromstring(text)
     borrowed = []
     anything = any(link.find("collision") is not None for link in root.iter("link"))
@@ -67,9 +68,6 @@ def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None, shown:
         complete, borrowed = visual_collisions(declared(resolved))
     except ET.ParseError as e:
         raise RobotError(f"{name}: not a URDF pybullet can read ({e})") from None
-    if "<collision" not in complete:
-        raise RobotError(f"{name}: no link has collision or visual geometry: every configuration would count as "
-                         "free; give the links <collision> shapes")
     if not borrowed and "package://" not in text and "file://" not in text and declared(text) == text:
         return path, []
     return _resolved_copy(path.name, complete if borrowed else declared(resolved)), borrowed
