@@ -101,14 +101,17 @@ def generate(robot: Robot | str | Path, scene: Surroundings | str | Path | None 
              progress: bool = False, *, name: str | None = None, thing_id: str | None = None,
              ee: str | None = None, workers: int | None = None, calibration_model: Model = "auto",
              on_progress: Callable[[float], None] | None = None, security: Security = NOSEC,
-             mount: RobotPlacement | None = None, surface: bool = True) -> GenerationResult:
+             mount: RobotPlacement | None = None, surface: bool = True,
+             collision_model: str = "fast") -> GenerationResult:
     """Generate a robot's TD and workspace artefacts into `out_dir`.
 
     `robot` is a Robot or a URDF path (`ee` then picks the end-effector link); `scene` a Surroundings, a
     scene file or a shipped scene name (None: the robot on the surface it is mounted on, or alone
     without `surface`); `mount` places the robot elsewhere than the scene says; `calibration` a Calibration or a
     pairs CSV. `base_url` is the Thing's URL on an HTTP adapter (`http://host:8080/ur10`): its last
-    segment is the Thing name, else `name` or the robot's name as a slug. Raises RobotError,
+    segment is the Thing name, else `name` or the robot's name as a slug. `collision_model` "fast" (the
+    sphere model, the exact test's answers; `tdgen.robot.fast_collision`) or "exact" (pybullet for every
+    sample). Raises RobotError,
     SceneError, CalibrationError or WorkspaceError with a message for people, ValueError for a
     base URL that names no Thing.
     """
@@ -122,7 +125,7 @@ def generate(robot: Robot | str | Path, scene: Surroundings | str | Path | None 
 
     t = time.perf_counter()
     sampled = sample_workspace(robot, scene, samples, seed, workers=workers, progress=progress,
-                               on_progress=on_progress)  # sampling is nearly all of the time
+                               on_progress=on_progress, collision_model=collision_model)
     if frame == "real":
         assert calibration is not None, "_calibration refuses the real frame without a calibration"
         sampled = Samples(sampled.q, np.round(calibration.apply(sampled.positions), 3), sampled.collision)

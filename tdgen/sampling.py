@@ -3,9 +3,12 @@
 Configurations are drawn uniformly within the joint limits (random, not a grid: no aliasing, and
 any N works). The end-effector positions come from the vectorised `ForwardKinematics` (it agrees
 with pybullet's link frames to well under a micrometre, see the tests), the collision flags from
-pybullet worlds in worker processes (spawn context; each worker owns one DIRECT client holding the
-scene and the robot). All random numbers are drawn up front from one seeded generator and chunks
-come back in order, so a seed gives the same points whatever the number of workers.
+collision model: by default the fast one (`tdgen.robot.fast_collision`: spheres and hull faces in
+compiled code on all cores, pybullet's exact test only for what they cannot decide, so the same
+answers), or with `collision_model="exact"` pybullet for every configuration. The exact checks run
+in worker processes (spawn context; each worker owns one DIRECT client holding the scene and the
+robot) when there are many. All random numbers are drawn up front from one seeded generator and
+chunks come back in order, so a seed gives the same points whatever the number of workers.
 
 What counts as a collision: see `tdgen.robot.collision`.
 
@@ -29,6 +32,8 @@ from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import Surroundings
 
 CHUNK = 1000
+COLLISION_MODELS = ("fast", "exact")
+IN_PROCESS = 20_000  # exact checks up to this many run here: a pool costs about a second to start
 
 
 @dataclass(frozen=True)
@@ -71,45 +76,84 @@ def default_workers() -> int:
 
 
 def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None = 0, workers: int | None = None,
-                     progress: bool = False, on_progress: Callable[[float], None] | None = None) -> Samples:
+                     progress: bool = False, on_progress: Callable[[float], None] | None = None,
+                     collision_model: str = "fast") -> Samples:
     """Draw n configurations and find their end-effector positions and collisions.
 
-    `workers=1` checks in this process (no start-up cost: small runs, tests); more use a spawn pool,
-    which pickles the robot: its passive map, if any, must be a module-level function.
+    `collision_model` "fast" (the default) or "exact" (pybullet for every configuration). Exact checks
+    run in this process with `workers=1` or when they are few; more use a spawn pool, which pickles
+    the robot: its passive map, if any, must be a module-level function.
     The progress bar goes to stderr and only shows when asked and stderr is a terminal;
     `on_progress(fraction)` is called after each chunk of configurations is checked.
     """
     if n < 1:
         raise ValueError("need at least one sample")
+    if collision_model not in COLLISION_MODELS:
+        raise ValueError(f"collision model must be one of {', '.join(COLLISION_MODELS)}, not {collision_model!r}")
     q = random_configurations(robot, n, seed)
     positions = np.round(ForwardKinematics(robot).positions(q) * 1000.0, 3)
-    chunks = [q[i:i + CHUNK] for i in range(0, n, CHUNK)]
-    workers = max(1, min(workers or default_workers(), len(chunks)))
     bar = tqdm(total=n, unit="samples", file=sys.stderr, disable=not (progress and sys.stderr.isatty()))
-    flags = []
+    checked = 0
+
+    def done(count: int) -> None:
+        nonlocal checked
+        checked += count
+        bar.update(count)
+        if on_progress is not None:
+            on_progress(checked / n)
+
     with bar:
-        if workers == 1:
-            world = CollisionWorld(robot, scene)
-            try:
-                for chunk in chunks:
-                    flags.append(world.colliding(chunk))
-                    bar.update(len(chunk))
-                    if on_progress is not None:
-                        on_progress(sum(map(len, flags)) / n)  # a disabled bar counts nothing
-            finally:
-                world.close()
-        else:
-            # a scene or robot pybullet cannot load fails here, in a fraction of a second, not in every
-            # worker (where it also used to leave Pool.terminate hanging now and then)
-            CollisionWorld(robot, scene).close()
-            ctx = multiprocessing.get_context("spawn")
-            with ctx.Pool(workers, initializer=_init_worker, initargs=(robot, scene)) as pool:
-                for chunk, result in zip(chunks, pool.imap(_check_chunk, chunks)):
-                    flags.append(result)
-                    bar.update(len(chunk))
-                    if on_progress is not None:
-                        on_progress(sum(map(len, flags)) / n)  # a disabled bar counts nothing
-    return Samples(q=q, positions=positions, collision=np.concatenate(flags))
+        # a scene or robot pybullet cannot load fails here, in a fraction of a second
+        world = CollisionWorld(robot, scene)
+        try:
+            if collision_model == "exact":
+                collision = _exact(world, robot, scene, q, workers, done)
+            else:
+                collision = _fast(world, robot, scene, q, workers, done)
+        finally:
+            world.close()
+    return Samples(q=q, positions=positions, collision=collision)
+
+
+FAST_CHUNK = 65_536  # configurations per call of the compiled model: memory stays flat in N
+
+
+def _fast(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarray, workers: int | None,
+          done: Callable[[int], None]) -> np.ndarray:
+    """The sphere model's verdicts, and pybullet's for the configurations it leaves unsure."""
+    from tdgen.robot.fast_collision import COLLIDES, UNSURE, FastCollision
+
+    fast = FastCollision(world)
+    verdicts = []
+    for start in range(0, len(q), FAST_CHUNK):
+        verdicts.append(fast.spheres.verdicts(q[start:start + FAST_CHUNK]))
+        decided = int(np.sum(verdicts[-1] != UNSURE))
+        done(decided)
+    verdict = np.concatenate(verdicts)
+    collision = verdict == COLLIDES
+    unsure = np.flatnonzero(verdict == UNSURE)
+    if len(unsure):
+        collision[unsure] = _exact(world, robot, scene, q[unsure], workers, done)
+    return collision
+
+
+def _exact(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarray, workers: int | None,
+           done: Callable[[int], None]) -> np.ndarray:
+    """pybullet's exact test for every row of q: here for few rows (or one worker), else in a spawn pool."""
+    chunks = [q[i:i + CHUNK] for i in range(0, len(q), CHUNK)]
+    workers = max(1, min(workers or default_workers(), len(chunks)))
+    flags = []
+    if workers == 1 or len(q) <= IN_PROCESS:
+        for chunk in chunks:
+            flags.append(world.colliding(chunk))
+            done(len(chunk))
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        with ctx.Pool(workers, initializer=_init_worker, initargs=(robot, scene)) as pool:
+            for chunk, result in zip(chunks, pool.imap(_check_chunk, chunks)):
+                flags.append(result)
+                done(len(chunk))
+    return np.concatenate(flags) if flags else np.zeros(0, dtype=bool)
 
 
 def write_points_csv(path: Path, robot: Robot, samples: Samples) -> None:

@@ -21,6 +21,7 @@ from tdgen.robot.model import RobotError
 from tdgen.robot.surroundings import RobotPlacement, SceneError, load_scene
 from tdgen.robot.workspace import WorkspaceError
 from tdgen.robot.workspace_check import DEFAULT_K, DEFAULT_MAX_PROBABILITY, DEFAULT_RADIUS_MM, Workspace
+from tdgen.sampling import COLLISION_MODELS
 from tdgen.td import slug
 
 USER_ERRORS = (RobotError, SceneError, CalibrationError, WorkspaceError)
@@ -55,12 +56,15 @@ SECURITY = {"nosec": NOSEC, "basic": Auth("basic", "").security(), "bearer": Aut
 @click.option("--id", "thing_id", help="TD id, an absolute URI [default: urn:twinmesh:robot:<name>].")
 @click.option("--workers", type=click.IntRange(min=1), help="Processes for collision checking [default: all cores].")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@click.option("--collision-model", type=click.Choice(COLLISION_MODELS), default="fast", show_default=True,
+              help="fast: spheres and hull faces in compiled code, pybullet only where they cannot decide (the same "
+                   "answers); exact: pybullet's contact test for every sample.")
 @arm_options
 @mount_options
 def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir: str | None, base_url: str | None,
                   calibration: str | None, calibration_model: str, frame: str, arm: ArmChoice, concave: bool,
                   name: str | None, thing_id: str | None, workers: int | None, no_progress: bool, security: str,
-                  mount: RobotPlacement | None, surface: bool, scene_robot: str | None) -> None:
+                  mount: RobotPlacement | None, surface: bool, scene_robot: str | None, collision_model: str) -> None:
     """Generate a robot's Thing Description and workspace artefacts from its URDF and its scene."""
     try:
         robot = arm.load(urdf)
@@ -71,14 +75,16 @@ def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir
         result = generate(robot, surroundings, samples, seed, Path(out_dir or f"td-{slug(robot.name)}"), base_url,
                           calibration, cast(Frame, frame), concave, progress=not no_progress, name=name,
                           thing_id=thing_id, workers=workers, calibration_model=cast(Model, calibration_model),
-                          security=SECURITY[security], mount=mount, surface=surface)
+                          security=SECURITY[security], mount=mount, surface=surface, collision_model=collision_model)
     except (*USER_ERRORS, ValueError) as exc:
         said = str(exc)
         raise usage_exit(said if said.startswith(urdf) or str(Path(urdf).resolve()) in said.split(":")[0]
                          else f"{urdf}: {said}") from None
     low, high = result.low_mm, result.high_mm
-    click.echo(f"{robot.name}: {result.samples} samples, {result.collision_free} collision-free "
-               f"({result.timings['sampling']:.1f} s sampling)")
+    sampling = result.timings["sampling"]
+    click.echo(f"{robot.name}: {result.samples} samples, {result.collision_free} collision-free; sampling "
+               f"{sampling:.2f} s ({result.samples / max(sampling, 1e-9):,.0f} samples/s, {collision_model} collision "
+               f"model), generation {result.timings.get('total', sampling):.2f} s")
     click.echo(f"workspace hull: {result.volume_mm3 / 1e9:.4f} m^3"
                + (f", alpha shape: {result.concave_volume_mm3 / 1e9:.4f} m^3"
                   if result.concave_volume_mm3 is not None else ""))

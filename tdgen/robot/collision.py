@@ -43,8 +43,8 @@ class CollisionWorld:
         count = pb.getNumJoints(self.body, physicsClientId=self.client)
         if not any(pb.getCollisionShapeData(self.body, i, physicsClientId=self.client) for i in range(-1, count)):
             pb.disconnect(self.client)
-            raise RobotError(f"{robot.source or robot.urdf_path}: no link has collision or visual geometry: every configuration would "
-                             "count as free; give the links <collision> shapes")
+            raise RobotError(f"{robot.source or robot.urdf_path}: no link has collision or visual geometry: every "
+                             "configuration would count as free; give the links <collision> shapes")
         names = {pb.getJointInfo(self.body, i, physicsClientId=self.client)[1].decode(): i
                  for i in range(count)}
         drives = robot.drives()

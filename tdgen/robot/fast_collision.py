@@ -1,0 +1,195 @@
+"""The fast collision model: "does q collide?" for thousands of configurations per numpy call, with
+pybullet's exact test deciding only what the spheres cannot.
+
+Every configuration gets one of three verdicts from the spheres (`tdgen.robot.spheres`): free (no
+outer shapes of a pair that counts touch: the exact test cannot find a contact), colliding (inner
+shapes overlap by more than `SURE_DEPTH`: it must find one), or unsure, which the exact test
+(`CollisionWorld`) then decides. So the answer is the exact test's; only its cost changes. The pairs
+that count are the exact test's own (`CollisionWorld`: adjacent and by-design pairs excluded, links
+bolted to the base not tested against the scene, allowed link/body pairs).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.link_frames import LinkFrames
+from tdgen.robot.spheres import PAD, SURE_DEPTH, Convex, cover, link_elements, outer_planes, scene_elements, within
+
+FREE, COLLIDES, UNSURE = 0, 1, 2
+CHUNK = 65536
+
+
+def _planes(rows: list[np.ndarray]) -> np.ndarray:
+    """(E, J, 4) half-spaces per element, padded by repeating a row (a max over rows is unchanged);
+    an element with none gets 0.x <= -1 (nothing is ever inside it)."""
+    width = max([len(r) for r in rows] + [1])
+    out = np.zeros((len(rows), width, 4))
+    for k, r in enumerate(rows):
+        r = r if len(r) else np.array([[0.0, 0.0, 0.0, -1.0]])
+        out[k, :len(r)], out[k, len(r):] = r, r[0]
+    return out
+
+
+class SphereModel:
+    """Spheres of the robot's links and convex scene bodies, built from (and checked against) a
+    `CollisionWorld`; `verdicts(q)` classifies (N, n) configurations as FREE, COLLIDES or UNSURE."""
+
+    def __init__(self, world: CollisionWorld):
+        pb, client, body, robot = world._pb, world.client, world.body, world.robot
+        count = pb.getNumJoints(body, physicsClientId=client)
+        links = list(range(-1, count))
+        names = [world._link_name(i) for i in links]
+        placement = world.scene.robot
+        self.frames = LinkFrames(robot, placement.position, placement.quaternion(), names)
+        elements = link_elements(robot.load_path or robot.urdf_path, robot.packages)
+        shapes = {i: elements.get(name) for i, name in zip(links, names)}
+        self.fallback = self._check_against_pybullet(world, links, shapes)
+        radii = world._geometry_radii(count) if self.fallback else {}
+        outer, inner, hulls = [], [], []
+        for slot, i in enumerate(links):
+            if i in self.fallback:  # one sphere around all pybullet has for the link, nothing sure inside
+                outer.append((np.zeros((1, 3)), np.array([radii[i] + PAD])))
+                inner.append((np.zeros((0, 3)), np.zeros(0)))
+                continue
+            parts = [cover(e) for e in shapes[i] or []]
+            none = (np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)), np.zeros(0))
+            outer.append((np.vstack([p[0] for p in parts] or [none[0]]), np.concatenate([p[1] for p in parts] or [none[1]])))
+            inner.append((np.vstack([p[2] for p in parts] or [none[2]]), np.concatenate([p[3] for p in parts] or [none[3]])))
+            hulls += [(slot, e) for e in shapes[i] or []]
+        has = [len(r) > 0 for _, r in outer]
+        slot_of = {i: k for k, i in enumerate(links)}
+        pairs = [(slot_of[a], slot_of[b]) for a in links for b in links
+                 if a < b and (a, b) not in world._excluded and has[slot_of[a]] and has[slot_of[b]]]
+        items = [(b, e) for b in world._scene_names for e in scene_elements(pb, client, b)]
+        element_body = np.array([b for b, _ in items], dtype=int)
+        allowed = np.ones((len(links), len(items)), dtype=bool)
+        for link, other in world._allowed_bodies:
+            allowed[slot_of[link], element_body == other] = False
+        self._tables = {**self.frames.tables(), **self._sphere_tables(outer, inner),
+                        **self._hull_tables(hulls, len(links)),
+                        "pairs": np.array(pairs, dtype=np.int64).reshape(-1, 2),
+                        "scene_links": np.array([i not in world._fixed_to_base and has[k] for k, i in enumerate(links)]),
+                        **self._scene_tables([e for _, e in items]), "touches": allowed}
+
+    @staticmethod
+    def _sphere_tables(outer, inner) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        for name, groups in (("outer", outer), ("inner", inner)):
+            width = max([len(r) for _, r in groups] + [1])
+            centres, radii = np.zeros((len(groups), width, 3)), np.zeros((len(groups), width))
+            for k, (c, r) in enumerate(groups):
+                centres[k, :len(r)], radii[k, :len(r)] = c, r
+            out |= {f"{name}_c": centres, f"{name}_r": radii,
+                    f"{name}_n": np.array([len(r) for _, r in groups], dtype=np.int64)}
+        # per link, one sphere around its outer spheres: the broad phase
+        bound_c, bound_r = np.zeros((len(outer), 3)), np.zeros(len(outer))
+        for k, (c, r) in enumerate(outer):
+            if len(r):
+                bound_c[k] = (c.min(axis=0) + c.max(axis=0)) / 2
+                bound_r[k] = np.max(np.linalg.norm(c - bound_c[k], axis=1) + r)
+        return out | {"bound_c": bound_c, "bound_r": bound_r}
+
+    @staticmethod
+    def _hull_tables(elements: list[tuple[int, Convex]], links: int) -> dict[str, np.ndarray]:
+        """Every element's corners and faces (link frame), where spheres cannot tell two shapes apart; and
+        its points surely inside it, and half-spaces inside it, where spheres cannot tell they overlap."""
+        inside = [e.inner_points() for _, e in elements]
+        width_in = max([len(p) for p in inside] + [1])
+        points_in = np.zeros((len(inside), width_in, 3))
+        for h, p in enumerate(inside):
+            points_in[h, :len(p)] = p
+        tables = {"hull_in": points_in, "hull_in_n": np.array([len(p) for p in inside], dtype=np.int64),
+                  "hull_in_planes": _planes([e.planes for _, e in elements]),
+                  "hull_in_nj": np.array([len(e.planes) for _, e in elements], dtype=np.int64)}
+        hulls = [(k, e.points) for k, e in elements]
+        width = max([len(p) for _, p in hulls] + [1])
+        points = np.zeros((len(hulls), width, 3))
+        for h, (_, p) in enumerate(hulls):
+            points[h, :len(p)] = p
+        faces = [outer_planes(Convex(p)) for _, p in hulls]
+        centres = np.array([(p.min(axis=0) + p.max(axis=0)) / 2 for _, p in hulls]).reshape(-1, 3)
+        per_link = [[h for h, (k, _) in enumerate(hulls) if k == slot] for slot in range(links)]
+        link_hulls = np.full((links, max([len(h) for h in per_link] + [1])), -1, dtype=np.int64)
+        for slot, hs in enumerate(per_link):
+            link_hulls[slot, :len(hs)] = hs
+        return {"hull_points": points, "hull_np": np.array([len(p) for _, p in hulls], dtype=np.int64),
+                "hull_planes": _planes(faces), "hull_nj": np.array([len(f) for f in faces], dtype=np.int64),
+                "hull_c": centres,
+                "hull_r": np.array([np.max(np.linalg.norm(p - c, axis=1)) for (_, p), c in zip(hulls, centres)]),
+                "link_hulls": link_hulls, "link_nh": np.array([len(h) for h in per_link], dtype=np.int64)} | tables
+
+    @staticmethod
+    def _scene_tables(elements: list[Convex]) -> dict[str, np.ndarray]:
+        outside = [outer_planes(e) for e in elements]
+        centres = np.array([(e.points.min(axis=0) + e.points.max(axis=0)) / 2 for e in elements]).reshape(-1, 3)
+        return {"el_outer": _planes(outside), "el_outer_n": np.array([len(p) for p in outside], dtype=np.int64),
+                "el_inner": _planes([e.planes for e in elements]),
+                "el_inner_n": np.array([len(e.planes) for e in elements], dtype=np.int64),
+                "el_c": centres,
+                "el_r": np.array([np.max(np.linalg.norm(e.points - c, axis=1)) for e, c in zip(elements, centres)])}
+
+    @staticmethod
+    def _check_against_pybullet(world: CollisionWorld, links: list[int],
+                                shapes: dict[int, list[Convex] | None]) -> set[int]:
+        """Links whose geometry as read here is not pybullet's: another number of shapes, or outside
+        pybullet's AABB of the link at one of three poses."""
+        pb, client, body, robot = world._pb, world.client, world.body, world.robot
+        frames = LinkFrames(robot, world.scene.robot.position, world.scene.robot.quaternion(),
+                            [world._link_name(i) for i in links])
+        lows, highs = robot.lows(), robot.highs()
+        rng = np.random.default_rng(7)
+        poses = np.vstack([np.clip(np.zeros(len(lows)), lows, highs), rng.uniform(lows, highs, (2, len(lows)))])
+        rot, pos = frames.frames(poses)
+        bad = {i for i in links if shapes[i] is None
+               or len(shapes[i] or []) != len(pb.getCollisionShapeData(body, i, physicsClientId=client))}
+        for k, q in enumerate(poses):
+            world._set(world._values(q[None])[0])
+            for slot, i in enumerate(links):
+                if i in bad:
+                    continue
+                lo, hi = pb.getAABB(body, i, physicsClientId=client)
+                if not within([e.moved(rot[k, slot], pos[k, slot]) for e in shapes[i] or []], lo, hi):
+                    bad.add(i)
+        return bad
+
+    def verdicts(self, q: np.ndarray) -> np.ndarray:
+        """(N, n) main-joint values (SI) -> (N,) FREE, COLLIDES or UNSURE; memory grows with CHUNK, not N."""
+        from tdgen.robot import sphere_kernel
+
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        out = np.empty(len(q), dtype=np.int8)
+        t = self._tables
+        for start in range(0, len(q), CHUNK):
+            out[start:start + CHUNK] = sphere_kernel.verdicts(
+                self.frames.values(q[start:start + CHUNK]), t["parent"], t["origin_r"], t["origin_p"], t["kind"],
+                t["axis"], t["base_r"], t["base_p"], t["outer_c"], t["outer_r"], t["outer_n"], t["inner_c"],
+                t["inner_r"], t["inner_n"], t["bound_c"], t["bound_r"], t["hull_points"], t["hull_np"],
+                t["hull_planes"], t["hull_nj"], t["hull_c"], t["hull_r"], t["link_hulls"], t["link_nh"], t["hull_in"],
+                t["hull_in_n"], t["hull_in_planes"], t["hull_in_nj"], t["pairs"],
+                t["scene_links"], t["el_outer"], t["el_outer_n"], t["el_inner"], t["el_inner_n"], t["el_c"],
+                t["el_r"], t["touches"], PAD, SURE_DEPTH)
+        return out
+
+
+class FastCollision:
+    """The exact test's answers at the sphere model's speed: a `CollisionWorld` and its `SphereModel`."""
+
+    def __init__(self, world: CollisionWorld):
+        self.world = world
+        self.spheres = SphereModel(world)
+        self.unsure = 0  # configurations left to the exact test so far (a figure for the benchmark)
+
+    def colliding(self, q: np.ndarray) -> np.ndarray:
+        """(N, n) main-joint values (SI) -> (N,) bool, as `CollisionWorld.colliding` answers."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        verdict = self.spheres.verdicts(q)
+        out = verdict == COLLIDES
+        unsure = np.flatnonzero(verdict == UNSURE)
+        self.unsure += len(unsure)
+        if len(unsure):
+            out[unsure] = self.world.colliding(q[unsure])
+        return out
+
+    def collides(self, q: np.ndarray) -> bool:
+        return bool(self.colliding(np.asarray(q)[None])[0])

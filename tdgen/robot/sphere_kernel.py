@@ -1,0 +1,269 @@
+"""The compiled loop of the fast collision model: one configuration per iteration, all cores.
+
+numpy would hold N x sphere-pairs arrays and walk memory several times per test; this loop keeps
+one configuration's link frames and spheres in a few hundred numbers (allocated once per block of
+configurations) and stops at the first sure answer. Compiled once per machine (numba caches it
+beside this file, or in NUMBA_CACHE_DIR). Verdicts: 0 free, 1 colliding, 2 unsure (for the exact
+test). See `fast_collision` for the model.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+BLOCKS = 64  # blocks of configurations the cores share
+
+
+@njit(cache=True, inline="always")
+def _move(rot, pos, k, p, out, i):
+    """out[i] = rot[k] @ p + pos[k]"""
+    for r in range(3):
+        out[i, r] = rot[k, r, 0] * p[0] + rot[k, r, 1] * p[1] + rot[k, r, 2] * p[2] + pos[k, r]
+
+
+@njit(cache=True, inline="always")
+def _frames(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, rot, pos, tmp):
+    count = parent.shape[0]
+    rot[0] = base_r
+    pos[0] = base_p
+    for k in range(1, count):
+        up = parent[k]
+        for r in range(3):
+            pos[k, r] = pos[up, r]
+            for c in range(3):
+                pos[k, r] += rot[up, r, c] * origin_p[k, c]
+                tmp[r, c] = rot[up, r, 0] * origin_r[k, 0, c] + rot[up, r, 1] * origin_r[k, 1, c] \
+                    + rot[up, r, 2] * origin_r[k, 2, c]
+        if kind[k] == 1:
+            x, y, z = axis[k, 0], axis[k, 1], axis[k, 2]
+            c, s = np.cos(values[k]), np.sin(values[k])
+            t = 1.0 - c
+            m00, m01, m02 = t * x * x + c, t * x * y - s * z, t * x * z + s * y
+            m10, m11, m12 = t * x * y + s * z, t * y * y + c, t * y * z - s * x
+            m20, m21, m22 = t * x * z - s * y, t * y * z + s * x, t * z * z + c
+            for r in range(3):
+                a, b, d = tmp[r, 0], tmp[r, 1], tmp[r, 2]
+                rot[k, r, 0] = a * m00 + b * m10 + d * m20
+                rot[k, r, 1] = a * m01 + b * m11 + d * m21
+                rot[k, r, 2] = a * m02 + b * m12 + d * m22
+        else:
+            rot[k] = tmp
+            if kind[k] == 2:
+                for r in range(3):
+                    pos[k, r] += (tmp[r, 0] * axis[k, 0] + tmp[r, 1] * axis[k, 1] + tmp[r, 2] * axis[k, 2]) * values[k]
+
+
+@njit(cache=True, inline="always")
+def _dist2(a, i, b, j):
+    x, y, z = a[i, 0] - b[j, 0], a[i, 1] - b[j, 1], a[i, 2] - b[j, 2]
+    return x * x + y * y + z * z
+
+
+@njit(cache=True)
+def _beyond(planes, n_planes, rot, pos, ka, points, n_points, kb, pad):
+    """A face of a hull of link ka with every corner of a hull of link kb beyond it by more than `pad`."""
+    for j in range(n_planes):
+        nx = rot[ka, 0, 0] * planes[j, 0] + rot[ka, 0, 1] * planes[j, 1] + rot[ka, 0, 2] * planes[j, 2]
+        ny = rot[ka, 1, 0] * planes[j, 0] + rot[ka, 1, 1] * planes[j, 1] + rot[ka, 1, 2] * planes[j, 2]
+        nz = rot[ka, 2, 0] * planes[j, 0] + rot[ka, 2, 1] * planes[j, 1] + rot[ka, 2, 2] * planes[j, 2]
+        offset = planes[j, 3] + nx * pos[ka, 0] + ny * pos[ka, 1] + nz * pos[ka, 2] + pad
+        # the normal in link kb's frame: corners need no moving
+        lx = rot[kb, 0, 0] * nx + rot[kb, 1, 0] * ny + rot[kb, 2, 0] * nz
+        ly = rot[kb, 0, 1] * nx + rot[kb, 1, 1] * ny + rot[kb, 2, 1] * nz
+        lz = rot[kb, 0, 2] * nx + rot[kb, 1, 2] * ny + rot[kb, 2, 2] * nz
+        lo = offset - (pos[kb, 0] * nx + pos[kb, 1] * ny + pos[kb, 2] * nz)
+        apart = True
+        for v in range(n_points):
+            if points[v, 0] * lx + points[v, 1] * ly + points[v, 2] * lz <= lo:
+                apart = False
+                break
+        if apart:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _deep_inside(points, n_points, rot, pos, k, planes, n_planes, plane_rot, plane_pos, depth):
+    """A point of a hull of link k (its frame) deeper than `depth` inside half-spaces given in the frame
+    (plane_rot, plane_pos): a point in both shapes that far from one's boundary: they interpenetrate."""
+    if n_planes == 0:
+        return False
+    for v in range(n_points):
+        wx = rot[k, 0, 0] * points[v, 0] + rot[k, 0, 1] * points[v, 1] + rot[k, 0, 2] * points[v, 2] + pos[k, 0]
+        wy = rot[k, 1, 0] * points[v, 0] + rot[k, 1, 1] * points[v, 1] + rot[k, 1, 2] * points[v, 2] + pos[k, 1]
+        wz = rot[k, 2, 0] * points[v, 0] + rot[k, 2, 1] * points[v, 1] + rot[k, 2, 2] * points[v, 2] + pos[k, 2]
+        # into the planes' frame
+        x, y, z = wx - plane_pos[0], wy - plane_pos[1], wz - plane_pos[2]
+        lx = plane_rot[0, 0] * x + plane_rot[1, 0] * y + plane_rot[2, 0] * z
+        ly = plane_rot[0, 1] * x + plane_rot[1, 1] * y + plane_rot[2, 1] * z
+        lz = plane_rot[0, 2] * x + plane_rot[1, 2] * y + plane_rot[2, 2] * z
+        inside = True
+        for j in range(n_planes):
+            if lx * planes[j, 0] + ly * planes[j, 1] + lz * planes[j, 2] - planes[j, 3] >= -depth:
+                inside = False
+                break
+        if inside:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _apart_from_element(planes, n_planes, rot, pos, k, points, n_points, pad):
+    """A face of a scene element (world frame) with every corner of a hull of link k beyond it."""
+    for j in range(n_planes):
+        nx, ny, nz = planes[j, 0], planes[j, 1], planes[j, 2]
+        lx = rot[k, 0, 0] * nx + rot[k, 1, 0] * ny + rot[k, 2, 0] * nz
+        ly = rot[k, 0, 1] * nx + rot[k, 1, 1] * ny + rot[k, 2, 1] * nz
+        lz = rot[k, 0, 2] * nx + rot[k, 1, 2] * ny + rot[k, 2, 2] * nz
+        lo = planes[j, 3] + pad - (pos[k, 0] * nx + pos[k, 1] * ny + pos[k, 2] * nz)
+        apart = True
+        for v in range(n_points):
+            if points[v, 0] * lx + points[v, 1] * ly + points[v, 2] * lz <= lo:
+                apart = False
+                break
+        if apart:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
+         outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
+         hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
+         hull_in, hull_in_n, hull_in_planes, hull_in_nj,
+         pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
+         pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero):
+    count = parent.shape[0]
+    _frames(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, rot, pos, tmp)
+    for k in range(count):
+        _move(rot, pos, k, bound_c[k], bw, k)
+        for i in range(outer_n[k]):
+            _move(rot, pos, k, outer_c[k, i], ow[k], i)
+        for i in range(inner_n[k]):
+            _move(rot, pos, k, inner_c[k, i], iw[k], i)
+    maybe = False
+    # the robot with itself
+    for p in range(pairs.shape[0]):
+        a, b = pairs[p, 0], pairs[p, 1]
+        if _dist2(bw, a, bw, b) >= (bound_r[a] + bound_r[b]) ** 2:
+            continue
+        for i in range(inner_n[a]):
+            for j in range(inner_n[b]):
+                reach = inner_r[a, i] + inner_r[b, j] - sure_depth
+                if reach > 0 and _dist2(iw[a], i, iw[b], j) < reach * reach:
+                    return 1
+        touch = False
+        for i in range(outer_n[a]):
+            for j in range(outer_n[b]):
+                reach = outer_r[a, i] + outer_r[b, j]
+                if _dist2(ow[a], i, ow[b], j) < reach * reach:
+                    touch = True
+                    break
+            if touch:
+                break
+        if not touch:
+            continue
+        if link_nh[a] == 0 or link_nh[b] == 0:
+            maybe = True
+            continue
+        for x in range(link_nh[a]):
+            ha = link_hulls[a, x]
+            _move(rot, pos, a, hull_c[ha], hw, 0)
+            for y in range(link_nh[b]):
+                hb = link_hulls[b, y]
+                _move(rot, pos, b, hull_c[hb], hw, 1)
+                if _dist2(hw, 0, hw, 1) >= (hull_r[ha] + hull_r[hb] + pad) ** 2:
+                    continue
+                if _deep_inside(hull_in[ha], hull_in_n[ha], rot, pos, a, hull_in_planes[hb], hull_in_nj[hb],
+                                rot[b], pos[b], sure_depth) or \
+                        _deep_inside(hull_in[hb], hull_in_n[hb], rot, pos, b, hull_in_planes[ha], hull_in_nj[ha],
+                                     rot[a], pos[a], sure_depth):
+                    return 1
+                if maybe:
+                    continue
+                if _beyond(hull_planes[ha], hull_nj[ha], rot, pos, a, hull_points[hb], hull_np[hb], b, pad):
+                    continue
+                if _beyond(hull_planes[hb], hull_nj[hb], rot, pos, b, hull_points[ha], hull_np[ha], a, pad):
+                    continue
+                maybe = True
+    # the robot with the scene
+    for k in range(count):
+        if not scene_links[k]:
+            continue
+        for e in range(el_c.shape[0]):
+            if not touches[k, e]:
+                continue
+            if _dist2(bw, k, el_c, e) >= (bound_r[k] + el_r[e]) ** 2:
+                continue
+            if el_inner_n[e] > 0:
+                for i in range(inner_n[k]):
+                    if inner_r[k, i] <= sure_depth:
+                        continue
+                    deepest = -np.inf
+                    for j in range(el_inner_n[e]):
+                        f = iw[k, i, 0] * el_inner[e, j, 0] + iw[k, i, 1] * el_inner[e, j, 1] \
+                            + iw[k, i, 2] * el_inner[e, j, 2] - el_inner[e, j, 3]
+                        if f > deepest:
+                            deepest = f
+                    if deepest < -sure_depth:
+                        return 1
+                for x in range(link_nh[k]):
+                    h = link_hulls[k, x]
+                    if _deep_inside(hull_in[h], hull_in_n[h], rot, pos, k, el_inner[e], el_inner_n[e], eye, zero,
+                                    sure_depth):
+                        return 1
+            if maybe:
+                continue
+            touch = False
+            for i in range(outer_n[k]):
+                deepest = -np.inf
+                for j in range(el_outer_n[e]):
+                    f = ow[k, i, 0] * el_outer[e, j, 0] + ow[k, i, 1] * el_outer[e, j, 1] \
+                        + ow[k, i, 2] * el_outer[e, j, 2] - el_outer[e, j, 3]
+                    if f > deepest:
+                        deepest = f
+                if deepest < outer_r[k, i]:
+                    touch = True
+                    break
+            if not touch:
+                continue
+            if link_nh[k] == 0:
+                maybe = True
+                continue
+            for x in range(link_nh[k]):
+                h = link_hulls[k, x]
+                if not _apart_from_element(el_outer[e], el_outer_n[e], rot, pos, k, hull_points[h], hull_np[h], pad):
+                    maybe = True
+                    break
+    return 2 if maybe else 0
+
+
+@njit(cache=True, parallel=True)
+def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
+             outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
+             hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
+             hull_in, hull_in_n, hull_in_planes, hull_in_nj,
+             pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
+             pad, sure_depth):
+    n = values.shape[0]
+    count = parent.shape[0]
+    out = np.zeros(n, dtype=np.int8)
+    per_block = (n + BLOCKS - 1) // BLOCKS
+    for block in prange(BLOCKS):
+        rot = np.empty((count, 3, 3))
+        pos = np.empty((count, 3))
+        tmp = np.empty((3, 3))
+        ow = np.empty((count, outer_c.shape[1], 3))
+        iw = np.empty((count, inner_c.shape[1], 3))
+        bw = np.empty((count, 3))
+        hw = np.empty((2, 3))
+        eye = np.eye(3)
+        zero = np.zeros(3)
+        for s in range(block * per_block, min(n, (block + 1) * per_block)):
+            out[s] = _one(values[s], parent, origin_r, origin_p, kind, axis, base_r, base_p,
+                          outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
+                          hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
+                          hull_in, hull_in_n, hull_in_planes, hull_in_nj,
+                          pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
+                          pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero)
+    return out

@@ -1,0 +1,115 @@
+"""The fast collision model answers as pybullet's exact test does, for every arm of the zoo and the lab.
+
+What a user would notice if it did not: a sample (a target the robot is later allowed to reach) called
+free that collides, or a workspace that differs with the model. The figures (time, how much is left to
+the exact test) are in tests/bench/bench_collision_model.py.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+import pytest
+from click.testing import CliRunner
+from test_robot_zoo import ROBOTS, ZOO
+
+from devices.sim import compensation as c
+from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.fast_collision import COLLIDES, FREE, UNSURE, FastCollision
+from tdgen.robot.link_frames import LinkFrames
+from tdgen.robot.model import Robot
+from tdgen.robot.surroundings import default_scene, load_scene
+from tdgen.sampling import random_configurations, sample_workspace
+
+SAMPLES = 1500
+
+
+def _lab_arms() -> dict[str, tuple[Robot, object]]:
+    uarm = Robot.load(c.UARM_URDF, ee=c.UARM_EE, passive_joints=c.UARM_PASSIVE_JOINTS, passive=c.uarm_passive)
+    dobot = Robot.load(c.DOBOT_URDF, ee=c.DOBOT_EE, passive_joints=c.DOBOT_PASSIVE_JOINTS, passive=c.dobot_passive)
+    ur10 = Robot.load("ur10.urdf")
+    return {"ur10 table-and-wall": (ur10, load_scene("table-and-wall")),
+            "ur10 cluttered-lab": (ur10, load_scene("cluttered-lab")),
+            "uarm iot-platform": (uarm, load_scene("iot-platform", "uarm")),
+            "dobot iot-platform": (dobot, load_scene("iot-platform", "dobot")),
+            "panda (pybullet_data)": (Robot.load("franka_panda/panda.urdf"), None)}
+
+
+def _agreement(robot: Robot, scene) -> tuple[np.ndarray, np.ndarray, FastCollision]:
+    scene = scene if scene is not None else default_scene(reach=robot.reach())
+    world = CollisionWorld(robot, scene)
+    try:
+        fast = FastCollision(world)
+        q = random_configurations(robot, SAMPLES, 11)
+        return fast.spheres.verdicts(q), world.colliding(q), fast
+    finally:
+        world.close()
+
+
+@pytest.mark.parametrize("name", sorted(ZOO))
+def test_every_zoo_arm_gets_the_exact_tests_answers(name):
+    urdf, options, _, _ = ZOO[name]
+    robot = Robot.load(ROBOTS / urdf, **options)
+    verdict, exact, fast = _agreement(robot, None)
+    called_free_colliding = int(np.sum((verdict == FREE) & exact))
+    called_sure_free = int(np.sum((verdict == COLLIDES) & ~exact))
+    print(f"\n{name:10s} free {np.mean(verdict == FREE):.3f} sure {np.mean(verdict == COLLIDES):.3f} "
+          f"unsure {np.mean(verdict == UNSURE):.3f} (exact: {exact.mean():.3f} colliding); "
+          f"links on pybullet's box: {sorted(fast.spheres.fallback)}")
+    assert called_free_colliding == 0, f"{called_free_colliding} samples called free collide"
+    assert called_sure_free == 0, f"{called_sure_free} samples called colliding are free"
+
+
+@pytest.mark.parametrize("name", sorted(_lab_arms()))
+def test_the_lab_arms_get_the_exact_tests_answers_and_most_need_no_exact_test(name):
+    robot, scene = _lab_arms()[name]
+    verdict, exact, fast = _agreement(robot, scene)
+    assert not fast.spheres.fallback, "the lab's own arms are read whole, none on pybullet's box"
+    assert int(np.sum((verdict == FREE) & exact)) == 0
+    assert int(np.sum((verdict == COLLIDES) & ~exact)) == 0
+    assert np.mean(verdict == UNSURE) < 0.4, "the spheres decide most samples themselves"
+
+
+def test_link_frames_are_pybullets_own():
+    robot = Robot.load(c.UARM_URDF, ee=c.UARM_EE, passive_joints=c.UARM_PASSIVE_JOINTS, passive=c.uarm_passive)
+    scene = load_scene("iot-platform", "uarm")
+    world = CollisionWorld(robot, scene)
+    try:
+        links = list(range(-1, pb.getNumJoints(world.body, physicsClientId=world.client)))
+        frames = LinkFrames(robot, scene.robot.position, scene.robot.quaternion(), [world._link_name(i) for i in links])
+        q = random_configurations(robot, 5, 2)
+        _, pos = frames.frames(q)
+        for k, row in enumerate(q):
+            world._set(world._values(row[None])[0])
+            for slot, i in enumerate(links[1:], start=1):
+                theirs = pb.getLinkState(world.body, i, computeForwardKinematics=True, physicsClientId=world.client)[4]
+                assert np.allclose(pos[k, slot], theirs, atol=1e-6)
+    finally:
+        world.close()
+
+
+def test_a_seed_gives_the_same_workspace_with_either_model_and_any_number_of_workers():
+    robot = Robot.load("ur10.urdf")
+    scene = load_scene("table-and-wall")
+    fast_one = sample_workspace(robot, scene, 3000, seed=4, workers=1)
+    fast_two = sample_workspace(robot, scene, 3000, seed=4, workers=2)
+    exact = sample_workspace(robot, scene, 3000, seed=4, workers=1, collision_model="exact")
+    assert np.array_equal(fast_one.collision, exact.collision)
+    assert np.array_equal(fast_one.collision, fast_two.collision)
+    assert np.array_equal(fast_one.positions, exact.positions)
+    with pytest.raises(ValueError, match="collision model must be one of fast, exact"):
+        sample_workspace(robot, scene, 10, collision_model="spheres")
+
+
+def test_tdgen_says_its_rate_and_takes_the_exact_model(tmp_path):
+    from devices.cli.main import main
+
+    runs = {}
+    for model in ("fast", "exact"):
+        result = CliRunner().invoke(main, ["tdgen", "ur10.urdf", "--scene", "table-and-wall", "--samples", "2000",
+                                           "--no-progress", "--out", str(tmp_path / model), "--collision-model", model])
+        assert result.exit_code == 0, result.output
+        assert f"samples/s, {model} collision model" in result.output
+        runs[model] = (tmp_path / model / "points.csv").read_text()
+    assert runs["fast"] == runs["exact"]  # the same points, the same collision flags
+    wrong = CliRunner().invoke(main, ["tdgen", "ur10.urdf", "--collision-model", "spheres"])
+    assert wrong.exit_code == 2 and "'spheres' is not one of 'fast', 'exact'" in wrong.output
