@@ -1,9 +1,9 @@
 """Workspace sampling: random joint configurations, their end-effector positions and collisions.
 
 Configurations are drawn uniformly within the joint limits (random, not a grid: no aliasing, and
-any N works). The end-effector positions come from the vectorised `ForwardKinematics` (it agrees
-with pybullet's link frames to well under a micrometre, see the tests), the collision flags from
-collision model: by default the fast one (`tdgen.robot.fast_collision`: spheres and hull faces in
+any N works). The end-effector positions come from the link frames of `LinkFrames` in compiled code
+(they agree with pybullet's link frames to well under a micrometre, see the tests), the collision
+flags from the collision model: by default the fast one (`tdgen.robot.fast_collision`: spheres and hull faces in
 compiled code on all cores, pybullet's exact test only for what they cannot decide, so the same
 answers), or with `collision_model="exact"` pybullet for every configuration. The exact checks run
 in worker processes (spawn context; each worker owns one DIRECT client holding the scene and the
@@ -27,7 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tdgen.robot.collision import CollisionWorld
-from tdgen.robot.kinematics import ForwardKinematics
+from tdgen.robot.link_frames import LinkFrames
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import Surroundings
 
@@ -91,7 +91,6 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
     if collision_model not in COLLISION_MODELS:
         raise ValueError(f"collision model must be one of {', '.join(COLLISION_MODELS)}, not {collision_model!r}")
     q = random_configurations(robot, n, seed)
-    positions = np.round(ForwardKinematics(robot).positions(q) * 1000.0, 3)
     bar = tqdm(total=n, unit="samples", file=sys.stderr, disable=not (progress and sys.stderr.isatty()))
     checked = 0
 
@@ -106,6 +105,7 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
         # a scene or robot pybullet cannot load fails here, in a fraction of a second
         world = CollisionWorld(robot, scene)
         try:
+            positions = np.round(_tip_positions(world, robot, scene, q) * 1000.0, 3)
             if collision_model == "exact":
                 collision = _exact(world, robot, scene, q, workers, done)
             else:
@@ -116,6 +116,14 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
 
 
 FAST_CHUNK = 65_536  # configurations per call of the compiled model: memory stays flat in N
+
+
+def _tip_positions(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarray) -> np.ndarray:
+    """(N, 3) tip positions in the robot's base frame (m): the link frames of `LinkFrames`, compiled, in
+    chunks (`ForwardKinematics` gives the same to well under a micrometre, at a third of the speed)."""
+    names = [world._link_name(i) for i in range(-1, world._pb.getNumJoints(world.body, physicsClientId=world.client))]
+    frames = LinkFrames(robot, scene.robot.position, scene.robot.quaternion(), names)
+    return np.vstack([frames.positions(q[i:i + FAST_CHUNK], robot.ee_link) for i in range(0, len(q), FAST_CHUNK)])
 
 
 def _fast(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarray, workers: int | None,

@@ -72,6 +72,16 @@ class LinkFrames:
         return {"parent": parent, "origin_r": origin_r, "origin_p": origin_p, "kind": kind, "axis": axis,
                 "base_r": np.asarray(self._base_rot, dtype=float), "base_p": self._base_pos}
 
+    def positions(self, q: np.ndarray, link: str) -> np.ndarray:
+        """(N, 3) origins of one link's frame in the robot's base frame (m), in compiled code: the
+        sampled points' positions."""
+        from tdgen.robot import sphere_kernel
+
+        t = self.tables()
+        world = sphere_kernel.tips(self.values(q), t["parent"], t["origin_r"], t["origin_p"], t["kind"], t["axis"],
+                                   t["base_r"], t["base_p"], self.names.index(link))
+        return (world - self._base_pos) @ self._base_rot
+
     def frames(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         n = len(q)

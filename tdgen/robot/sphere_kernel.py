@@ -108,6 +108,29 @@ def _deep_inside(points, n_points, rot, pos, k, planes, n_planes, plane_rot, pla
 
 
 @njit(cache=True)
+def _sphere_in(centres, i, radius, planes, n_planes, depth):
+    """Does sphere i overlap the polytope by more than `depth`? Its centre inside, deep enough; or outside
+    with the nearest point on the face it is beyond (its foot inside every other half-space) closer
+    than radius - depth (then that is the true distance)."""
+    deepest, face = -np.inf, 0
+    for j in range(n_planes):
+        f = centres[i, 0] * planes[j, 0] + centres[i, 1] * planes[j, 1] + centres[i, 2] * planes[j, 2] - planes[j, 3]
+        if f > deepest:
+            deepest, face = f, j
+    if deepest < -depth:
+        return True
+    if deepest < 0.0 or deepest >= radius - depth:
+        return False
+    x = centres[i, 0] - deepest * planes[face, 0]
+    y = centres[i, 1] - deepest * planes[face, 1]
+    z = centres[i, 2] - deepest * planes[face, 2]
+    for j in range(n_planes):
+        if x * planes[j, 0] + y * planes[j, 1] + z * planes[j, 2] - planes[j, 3] > 1e-9:
+            return False
+    return True
+
+
+@njit(cache=True)
 def _apart_from_element(planes, n_planes, rot, pos, k, points, n_points, pad):
     """A face of a scene element (world frame) with every corner of a hull of link k beyond it."""
     for j in range(n_planes):
@@ -199,13 +222,7 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                 for i in range(inner_n[k]):
                     if inner_r[k, i] <= sure_depth:
                         continue
-                    deepest = -np.inf
-                    for j in range(el_inner_n[e]):
-                        f = iw[k, i, 0] * el_inner[e, j, 0] + iw[k, i, 1] * el_inner[e, j, 1] \
-                            + iw[k, i, 2] * el_inner[e, j, 2] - el_inner[e, j, 3]
-                        if f > deepest:
-                            deepest = f
-                    if deepest < -sure_depth:
+                    if _sphere_in(iw[k], i, inner_r[k, i], el_inner[e], el_inner_n[e], sure_depth):
                         return 1
                 for x in range(link_nh[k]):
                     h = link_hulls[k, x]
@@ -236,6 +253,23 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                     maybe = True
                     break
     return 2 if maybe else 0
+
+
+@njit(cache=True, parallel=True)
+def tips(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, tip):
+    """(N, 3) world positions of link slot `tip`'s frame."""
+    n = values.shape[0]
+    count = parent.shape[0]
+    out = np.empty((n, 3))
+    per_block = (n + BLOCKS - 1) // BLOCKS
+    for block in prange(BLOCKS):
+        rot = np.empty((count, 3, 3))
+        pos = np.empty((count, 3))
+        tmp = np.empty((3, 3))
+        for s in range(block * per_block, min(n, (block + 1) * per_block)):
+            _frames(values[s], parent, origin_r, origin_p, kind, axis, base_r, base_p, rot, pos, tmp)
+            out[s] = pos[tip]
+    return out
 
 
 @njit(cache=True, parallel=True)
