@@ -296,7 +296,7 @@ def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, worker
     def fill(folder: Path) -> None:
         result = generate(robot, scene_of(twin), twin.samples, twin.seed, folder, calibration=calibration,
                           frame=twin.frame, name=twin.robot, thing_id=robot_id(twin.robot), workers=workers,
-                          on_progress=on_progress)
+                          on_progress=on_progress, collision_model=twin.collision_model)
         (folder / "td.json").write_bytes(msgspec.json.encode(result.td))  # the TD the robot serves on the mesh
         for warning in result.warnings:
             log.warning("%s: %s", twin.robot, warning)

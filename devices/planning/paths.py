@@ -21,11 +21,13 @@ from typing import Sequence
 import numpy as np
 
 from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.fast_collision import FastCollision
 
 STEP_MM = 5.0            # no point of the robot moves further than this between two checked states
 PLANNING_BUDGET_S = 1.0  # default time a plan may take
 _COARSE = 20.0           # the planner's own motion checks are this much coarser than STEP_MM at first
 _RANGE = 1.0             # RRTConnect's longest extension (rad or m): short ones waste fewer checks
+BATCH = 4                # segments of this many states or more are judged at once by the fast model
 
 
 @dataclass(frozen=True)
@@ -50,9 +52,10 @@ class NoPath(Exception):
 
 
 class PathChecker:
-    """Collision checks of states and straight segments in one CollisionWorld (not thread-safe)."""
+    """Collision checks of states and straight segments in one collision model (not thread-safe): the
+    fast one (`FastCollision`, the exact test's answers) or pybullet's exact `CollisionWorld`."""
 
-    def __init__(self, world: CollisionWorld, step_mm: float = STEP_MM):
+    def __init__(self, world: CollisionWorld | FastCollision, step_mm: float = STEP_MM):
         self.world = world
         self.step_m = step_mm / 1000.0
         self.radii = world.sweep_radii()
@@ -71,6 +74,10 @@ class PathChecker:
         """Whether every state of a->b at the resolution is free (a itself is not checked)."""
         a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
         n = self.subdivisions(a, b)
+        if isinstance(self.world, FastCollision) and n >= BATCH:
+            order = np.array(_bisection_order(n), dtype=float)
+            self.checks += len(order)
+            return not self.world.first_collision(a + (b - a) * (order[:, None] / n))
         for k in _bisection_order(n):
             if not self.free(a + (b - a) * (k / n)):
                 return False

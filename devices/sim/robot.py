@@ -34,7 +34,7 @@ import math
 import threading
 import time
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Literal, Mapping
+from typing import Any, Callable, Literal, Mapping, cast
 
 import msgspec
 import numpy as np
@@ -49,6 +49,7 @@ from mesh.wot.invocation import ActionCancelled
 from mesh.wot.problem import BadInput, Problem, Refused, Unavailable
 from tdgen.robot.calibration import Calibration
 from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.fast_collision import FastCollision
 from tdgen.robot.ik import solve, solve_many
 from tdgen.robot.kinematics import ForwardKinematics
 from tdgen.robot.model import Robot
@@ -189,10 +190,12 @@ class RobotTwin:
                  calibration: Calibration | None = None,
                  max_collision_probability: float | None = None, k: int = DEFAULT_K,
                  radius_mm: float = DEFAULT_RADIUS_MM, home: Vec | None = None,
-                 workspace_wait: float = 0.0, planning_budget: float = PLANNING_BUDGET_S):
+                 workspace_wait: float = 0.0, planning_budget: float = PLANNING_BUDGET_S,
+                 collision_model: str = "fast"):
         if max_collision_probability is not None and not 0.0 <= max_collision_probability <= 1.0:
             raise ValueError("max_collision_probability must be within 0..1")
         self.world, self.robot, self.name, self.base = world, robot, name, base
+        self.collision_model = collision_model  # sampling, target checks and planning stand on the same one
         self.frame = TdFrame(calibration)
         self.max_collision_probability, self.k, self.radius_mm = max_collision_probability, k, radius_mm
         self.fk = ForwardKinematics(robot)
@@ -356,7 +359,7 @@ class RobotTwin:
             urdf_dir=str(self.robot.urdf_path.resolve().parent), base=self.base.pose(),
             ee=self.robot.ee_link, base_link=self.robot.base_link, fixed=self.robot.info()["heldJoints"],
             packages=self.robot.packages, allowed_collisions=list(self.robot.allowed_collisions), scene=scene,
-            samples=samples, seed=seed,
+            samples=samples, seed=seed, collision_model=cast(Literal["fast", "exact"], self.collision_model),
             calibration=None if cal is None else [[*t, *r] for t, r in zip(cal.twin, cal.real)],
             frame=self.frame.name, version=self.version)
 
@@ -606,7 +609,8 @@ class RobotTwin:
 
     def _path_checker(self) -> PathChecker:  # under _scene_lock
         if self._checker is None:
-            self._checker = PathChecker(CollisionWorld(self.robot, self._scene))
+            world = CollisionWorld(self.robot, self._scene)
+            self._checker = PathChecker(FastCollision(world, warm=True) if self.collision_model == "fast" else world)
         return self._checker
 
     def _collides(self, q: np.ndarray) -> bool:

@@ -238,13 +238,14 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
         fixed: dict[str, float] | None = None, packages: dict[str, str] | None = None,
         allowed_collisions: tuple[tuple[str, str], ...] = (), surface: bool = True,
         scene_robot: str | None = None, announce: Callable[[str], None] | None = None,
-        real: Sequence[Any] = (), access: Any = None) -> None:
+        real: Sequence[Any] = (), access: Any = None, collision_model: str = "fast") -> None:
     """Process entry: one robot in its own World (its scene's static bodies loaded) until `stop` is set.
 
     `base` is where the robot stands in the scene frame (default: the scene's robot placement);
     without a scene it stands on its mounting surface unless `surface` is False. `speed` None runs
     the simulation as fast as possible. `real`: the real robot this twin guards (`devices.things.guard`),
-    reached with `access`.
+    reached with `access`. `collision_model` "fast" or "exact" decides collisions for the workspace's
+    samples, the target checks and the planner alike.
     """
     from devices.sim.robot import WORKSPACE_WAIT, Base, RobotTwin
     from devices.sim.world import World
@@ -268,7 +269,7 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
         world.start()
         twin = RobotTwin(world, robot, name or slug(robot.name), where, the_scene, calibration=cal,
                          max_collision_probability=max_collision_probability, workspace_wait=WORKSPACE_WAIT,
-                         planning_budget=planning_budget)
+                         planning_budget=planning_budget, collision_model=collision_model)
         stack.callback(twin.close)
         session = stack.enter_context(open_session(settings, thing=twin.name))
         thing = RobotThing(session, settings, twin, samples=samples, seed=seed)

@@ -94,4 +94,5 @@ class TwinDescription(msgspec.Struct, omit_defaults=True, kw_only=True):
     seed: int = 0
     calibration: list[list[float]] | None = None  # rows twin_x,twin_y,twin_z,real_x,real_y,real_z (mm)
     frame: Literal["twin", "real"] = "twin"
+    collision_model: Literal["fast", "exact"] = "fast"  # what decides a sampled configuration's collision
     version: int = 0                            # bumped whenever the scene around the robot changes

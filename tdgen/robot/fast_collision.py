@@ -10,6 +10,8 @@ bolted to the base not tested against the scene, allowed link/body pairs).
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from tdgen.robot.collision import CollisionWorld
@@ -18,6 +20,8 @@ from tdgen.robot.spheres import PAD, SURE_DEPTH, Convex, cover, link_elements, o
 
 FREE, COLLIDES, UNSURE = 0, 1, 2
 CHUNK = 65536
+NO_PASSIVE = np.zeros(0)
+_PARALLEL = threading.Lock()  # numba's default threading layer takes one parallel launch at a time per process
 
 
 def _planes(rows: list[np.ndarray]) -> np.ndarray:
@@ -29,6 +33,28 @@ def _planes(rows: list[np.ndarray]) -> np.ndarray:
         r = r if len(r) else np.array([[0.0, 0.0, 0.0, -1.0]])
         out[k, :len(r)], out[k, len(r):] = r, r[0]
     return out
+
+
+GROUP_CELL = 0.3  # m: scene elements are grouped by the cell of this size their centre is in (the broad phase)
+
+
+def _groups(centres: np.ndarray, radii: np.ndarray) -> dict[str, np.ndarray]:
+    """Elements grouped by grid cell, each group with one sphere around its members' spheres: a link
+    far from a group's sphere skips all its members (a room of 600 boxes has a few dozen groups)."""
+    cells = np.floor(centres / GROUP_CELL).astype(np.int64)
+    _, group = np.unique(cells, axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    order = np.argsort(group, kind="stable")
+    counts = np.bincount(group, minlength=int(group.max()) + 1 if len(group) else 0)
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    group_c, group_r = np.zeros((len(counts), 3)), np.zeros(len(counts))
+    for g in range(len(counts)):
+        members = order[start[g]:start[g + 1]]
+        lo = (centres[members] - radii[members, None]).min(axis=0)
+        hi = (centres[members] + radii[members, None]).max(axis=0)
+        group_c[g] = (lo + hi) / 2
+        group_r[g] = np.max(np.linalg.norm(centres[members] - group_c[g], axis=1) + radii[members])
+    return {"group_c": group_c, "group_r": group_r, "group_start": start, "group_members": order.astype(np.int64)}
 
 
 class SphereModel:
@@ -123,11 +149,11 @@ class SphereModel:
     def _scene_tables(elements: list[Convex]) -> dict[str, np.ndarray]:
         outside = [outer_planes(e) for e in elements]
         centres = np.array([(e.points.min(axis=0) + e.points.max(axis=0)) / 2 for e in elements]).reshape(-1, 3)
-        return {"el_outer": _planes(outside), "el_outer_n": np.array([len(p) for p in outside], dtype=np.int64),
-                "el_inner": _planes([e.planes for e in elements]),
-                "el_inner_n": np.array([len(e.planes) for e in elements], dtype=np.int64),
-                "el_c": centres,
-                "el_r": np.array([np.max(np.linalg.norm(e.points - c, axis=1)) for e, c in zip(elements, centres)])}
+        radii = np.array([np.max(np.linalg.norm(e.points - c, axis=1)) for e, c in zip(elements, centres)])
+        return _groups(centres, radii) | {
+            "el_outer": _planes(outside), "el_outer_n": np.array([len(p) for p in outside], dtype=np.int64),
+            "el_inner": _planes([e.planes for e in elements]),
+            "el_inner_n": np.array([len(e.planes) for e in elements], dtype=np.int64), "el_c": centres, "el_r": radii}
 
     @staticmethod
     def _check_against_pybullet(world: CollisionWorld, links: list[int],
@@ -153,32 +179,69 @@ class SphereModel:
                     bad.add(i)
         return bad
 
+    ORDER = ("parent", "origin_r", "origin_p", "kind", "axis", "base_r", "base_p", "outer_c", "outer_r", "outer_n",
+             "inner_c", "inner_r", "inner_n", "bound_c", "bound_r", "hull_points", "hull_np", "hull_planes", "hull_nj",
+             "hull_c", "hull_r", "link_hulls", "link_nh", "hull_in", "hull_in_n", "hull_in_planes", "hull_in_nj",
+             "pairs", "scene_links", "el_outer", "el_outer_n", "el_inner", "el_inner_n", "el_c", "el_r", "touches",
+             "group_c", "group_r", "group_start", "group_members")  # the compiled loop's arguments after the values
+
     def verdicts(self, q: np.ndarray) -> np.ndarray:
         """(N, n) main-joint values (SI) -> (N,) FREE, COLLIDES or UNSURE; memory grows with CHUNK, not N."""
         from tdgen.robot import sphere_kernel
 
         q = np.atleast_2d(np.asarray(q, dtype=float))
         out = np.empty(len(q), dtype=np.int8)
-        t = self._tables
         for start in range(0, len(q), CHUNK):
-            out[start:start + CHUNK] = sphere_kernel.verdicts(
-                self.frames.values(q[start:start + CHUNK]), t["parent"], t["origin_r"], t["origin_p"], t["kind"],
-                t["axis"], t["base_r"], t["base_p"], t["outer_c"], t["outer_r"], t["outer_n"], t["inner_c"],
-                t["inner_r"], t["inner_n"], t["bound_c"], t["bound_r"], t["hull_points"], t["hull_np"],
-                t["hull_planes"], t["hull_nj"], t["hull_c"], t["hull_r"], t["link_hulls"], t["link_nh"], t["hull_in"],
-                t["hull_in_n"], t["hull_in_planes"], t["hull_in_nj"], t["pairs"],
-                t["scene_links"], t["el_outer"], t["el_outer_n"], t["el_inner"], t["el_inner_n"], t["el_c"],
-                t["el_r"], t["touches"], PAD, SURE_DEPTH)
+            values = self.frames.values(q[start:start + CHUNK])
+            with _PARALLEL:
+                out[start:start + CHUNK] = sphere_kernel.verdicts(values, *self._args)
         return out
+
+    def verdicts_here(self, q: np.ndarray) -> np.ndarray:
+        """`verdicts` on this thread, without the cores' start-up: for a few dozen states (a segment)."""
+        from tdgen.robot import sphere_kernel
+
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        robot = self.frames.robot
+        passive = np.atleast_2d(robot.passive(q)) if robot.passive is not None else np.zeros((len(q), 0))
+        return sphere_kernel.verdicts_packed(q, passive, *self._packing(), PAD, SURE_DEPTH)  # type: ignore[call-arg]
+
+    def _packing(self) -> tuple:
+        from tdgen.robot import sphere_kernel
+
+        if not hasattr(self, "_packed"):
+            self._packed = (*self.frames.value_maps(), *sphere_kernel.pack(self._tables))
+        return self._packed
+
+    def verdict(self, q: np.ndarray) -> int:
+        """One configuration (n,) SI -> FREE, COLLIDES or UNSURE, on this thread (a planner's hot path)."""
+        from tdgen.robot import sphere_kernel
+
+        q = np.asarray(q, dtype=float)
+        robot = self.frames.robot
+        passive = np.atleast_2d(robot.passive(q[None]))[0] if robot.passive is not None else NO_PASSIVE
+        return int(sphere_kernel.verdict_packed(q, passive, *self._packing(), PAD, SURE_DEPTH))  # type: ignore[call-arg]
+
+    @property
+    def _args(self) -> tuple:
+        if not hasattr(self, "_arg_tuple"):
+            self._arg_tuple = (*(self._tables[k] for k in self.ORDER), PAD, SURE_DEPTH)
+        return self._arg_tuple
 
 
 class FastCollision:
     """The exact test's answers at the sphere model's speed: a `CollisionWorld` and its `SphereModel`."""
 
-    def __init__(self, world: CollisionWorld):
+    def __init__(self, world: CollisionWorld, warm: bool = False):
+        """`warm`: load (on a machine's first use: compile, 10-20 s) the one-state code now, not in a
+        planner's first check, whose time budget it would eat."""
         self.world = world
         self.spheres = SphereModel(world)
         self.unsure = 0  # configurations left to the exact test so far (a figure for the benchmark)
+        if warm:
+            home = np.clip(np.zeros(len(world.robot.joints)), world.robot.lows(), world.robot.highs())
+            self.spheres.verdict(home)
+            self.spheres.verdicts_here(home[None])
 
     def colliding(self, q: np.ndarray) -> np.ndarray:
         """(N, n) main-joint values (SI) -> (N,) bool, as `CollisionWorld.colliding` answers."""
@@ -192,4 +255,30 @@ class FastCollision:
         return out
 
     def collides(self, q: np.ndarray) -> bool:
-        return bool(self.colliding(np.asarray(q)[None])[0])
+        """One configuration (n,) SI: as `CollisionWorld.collides` answers (planners' hot path)."""
+        verdict = self.spheres.verdict(q)
+        if verdict == UNSURE:
+            self.unsure += 1
+            return self.world.collides(q)
+        return verdict == COLLIDES
+
+    def first_collision(self, states: np.ndarray) -> bool:
+        """Does any of these states (K, n) collide? The spheres judge all at once on this thread; the
+        exact test then the unsure ones in the order given (a segment's bisection order), to the first."""
+        verdict = self.spheres.verdicts_here(states)
+        if np.any(verdict == COLLIDES):
+            return True
+        for k in np.flatnonzero(verdict == UNSURE):
+            self.unsure += 1
+            if self.world.collides(states[k]):
+                return True
+        return False
+
+    def what_collides(self, q: np.ndarray) -> list[str]:
+        return self.world.what_collides(q)
+
+    def sweep_radii(self) -> np.ndarray:
+        return self.world.sweep_radii()
+
+    def close(self) -> None:
+        self.world.close()

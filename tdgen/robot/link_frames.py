@@ -60,6 +60,21 @@ class LinkFrames:
                 out[:, k] = self._value(drive, q, passive)
         return out
 
+    def value_maps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`values` as a linear map: (main (n, L), passive (p, L), offsets (L,)) with values = q . main +
+        passive(q) . passive + offsets."""
+        count, n = len(self.names), len(self.robot.joints)
+        main, passive, offsets = np.zeros((n, count)), np.zeros((len(self.robot.passive_names), count)), np.zeros(count)
+        for k, _, _, kind, _, drive in self._steps:
+            if kind == "fixed" or drive is None:
+                continue
+            if drive.kind == "main":
+                main[drive.index, k] = drive.multiplier
+            elif drive.kind == "passive":
+                passive[drive.index, k] = drive.multiplier
+            offsets[k] = drive.offset
+        return main, passive, offsets
+
     def tables(self) -> dict[str, np.ndarray]:
         """The tree as arrays (for compiled code): parent slot, joint origin, kind (0 fixed, 1 turning,
         2 sliding) and axis per link slot, and the base's pose."""

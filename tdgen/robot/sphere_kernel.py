@@ -155,7 +155,7 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
          hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
          hull_in, hull_in_n, hull_in_planes, hull_in_nj,
          pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-         pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero):
+         group_c, group_r, group_start, group_members, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero):
     count = parent.shape[0]
     _frames(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, rot, pos, tmp)
     for k in range(count):
@@ -213,46 +213,70 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
     for k in range(count):
         if not scene_links[k]:
             continue
-        for e in range(el_c.shape[0]):
-            if not touches[k, e]:
+        for g in range(group_c.shape[0]):
+            if _dist2(bw, k, group_c, g) >= (bound_r[k] + group_r[g]) ** 2:
                 continue
-            if _dist2(bw, k, el_c, e) >= (bound_r[k] + el_r[e]) ** 2:
-                continue
-            if el_inner_n[e] > 0:
-                for i in range(inner_n[k]):
-                    if inner_r[k, i] <= sure_depth:
-                        continue
-                    if _sphere_in(iw[k], i, inner_r[k, i], el_inner[e], el_inner_n[e], sure_depth):
-                        return 1
+            for m in range(group_start[g], group_start[g + 1]):
+                e = group_members[m]
+                if not touches[k, e]:
+                    continue
+                if _dist2(bw, k, el_c, e) >= (bound_r[k] + el_r[e]) ** 2:
+                    continue
+                if el_inner_n[e] > 0:
+                    for i in range(inner_n[k]):
+                        if inner_r[k, i] <= sure_depth:
+                            continue
+                        if _sphere_in(iw[k], i, inner_r[k, i], el_inner[e], el_inner_n[e], sure_depth):
+                            return 1
+                    for x in range(link_nh[k]):
+                        h = link_hulls[k, x]
+                        if _deep_inside(hull_in[h], hull_in_n[h], rot, pos, k, el_inner[e], el_inner_n[e], eye, zero,
+                                        sure_depth):
+                            return 1
+                if maybe:
+                    continue
+                touch = False
+                for i in range(outer_n[k]):
+                    deepest = -np.inf
+                    for j in range(el_outer_n[e]):
+                        f = ow[k, i, 0] * el_outer[e, j, 0] + ow[k, i, 1] * el_outer[e, j, 1] \
+                            + ow[k, i, 2] * el_outer[e, j, 2] - el_outer[e, j, 3]
+                        if f > deepest:
+                            deepest = f
+                    if deepest < outer_r[k, i]:
+                        touch = True
+                        break
+                if not touch:
+                    continue
+                if link_nh[k] == 0:
+                    maybe = True
+                    continue
                 for x in range(link_nh[k]):
                     h = link_hulls[k, x]
-                    if _deep_inside(hull_in[h], hull_in_n[h], rot, pos, k, el_inner[e], el_inner_n[e], eye, zero,
-                                    sure_depth):
-                        return 1
-            if maybe:
-                continue
-            touch = False
-            for i in range(outer_n[k]):
-                deepest = -np.inf
-                for j in range(el_outer_n[e]):
-                    f = ow[k, i, 0] * el_outer[e, j, 0] + ow[k, i, 1] * el_outer[e, j, 1] \
-                        + ow[k, i, 2] * el_outer[e, j, 2] - el_outer[e, j, 3]
-                    if f > deepest:
-                        deepest = f
-                if deepest < outer_r[k, i]:
-                    touch = True
-                    break
-            if not touch:
-                continue
-            if link_nh[k] == 0:
-                maybe = True
-                continue
-            for x in range(link_nh[k]):
-                h = link_hulls[k, x]
-                if not _apart_from_element(el_outer[e], el_outer_n[e], rot, pos, k, hull_points[h], hull_np[h], pad):
-                    maybe = True
-                    break
+                    if not _apart_from_element(el_outer[e], el_outer_n[e], rot, pos, k, hull_points[h], hull_np[h], pad):
+                        maybe = True
+                        break
     return 2 if maybe else 0
+
+
+@njit(cache=True)
+def verdict_one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
+                outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
+                hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
+                hull_in, hull_in_n, hull_in_planes, hull_in_nj,
+                pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
+                group_c, group_r, group_start, group_members, pad, sure_depth):
+    """One configuration's verdict without the threads' start-up: a planner's state check."""
+    count = parent.shape[0]
+    return _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
+                outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
+                hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
+                hull_in, hull_in_n, hull_in_planes, hull_in_nj,
+                pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
+                group_c, group_r, group_start, group_members, pad, sure_depth,
+                np.empty((count, 3, 3)), np.empty((count, 3)), np.empty((3, 3)),
+                np.empty((count, outer_c.shape[1], 3)), np.empty((count, inner_c.shape[1], 3)),
+                np.empty((count, 3)), np.empty((2, 3)), np.eye(3), np.zeros(3))
 
 
 @njit(cache=True, parallel=True)
@@ -278,7 +302,7 @@ def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
              hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
              hull_in, hull_in_n, hull_in_planes, hull_in_nj,
              pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-             pad, sure_depth):
+             group_c, group_r, group_start, group_members, pad, sure_depth):
     n = values.shape[0]
     count = parent.shape[0]
     out = np.zeros(n, dtype=np.int8)
@@ -299,5 +323,100 @@ def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                           hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
                           hull_in, hull_in_n, hull_in_planes, hull_in_nj,
                           pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-                          pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero)
+                          group_c, group_r, group_start, group_members, pad, sure_depth, rot, pos, tmp, ow, iw, bw,
+                          hw, eye, zero)
     return out
+
+
+@njit(cache=True, inline="always")
+def _f1(floats, meta, k):
+    return floats[meta[k, 0]:meta[k, 0] + meta[k, 1]]
+
+
+@njit(cache=True, inline="always")
+def _f2(floats, meta, k):
+    return floats[meta[k, 0]:meta[k, 0] + meta[k, 1] * meta[k, 2]].reshape((meta[k, 1], meta[k, 2]))
+
+
+@njit(cache=True, inline="always")
+def _f3(floats, meta, k):
+    size = meta[k, 1] * meta[k, 2] * meta[k, 3]
+    return floats[meta[k, 0]:meta[k, 0] + size].reshape((meta[k, 1], meta[k, 2], meta[k, 3]))
+
+
+@njit(cache=True, inline="always")
+def _i1(ints, meta, k):
+    return ints[meta[k, 0]:meta[k, 0] + meta[k, 1]]
+
+
+@njit(cache=True, inline="always")
+def _i2(ints, meta, k):
+    return ints[meta[k, 0]:meta[k, 0] + meta[k, 1] * meta[k, 2]].reshape((meta[k, 1], meta[k, 2]))
+
+
+@njit(cache=True)
+def verdicts_packed(q, passive, main_map, passive_map, offsets, floats, ints, meta, pad, sure_depth):
+    """`verdict_packed` for the rows of q (and of passive, (N, p)) on this thread: a short segment's states."""
+    out = np.empty(q.shape[0], dtype=np.int8)
+    for s in range(q.shape[0]):
+        out[s] = verdict_packed(q[s], passive[s], main_map, passive_map, offsets, floats, ints, meta, pad, sure_depth)
+    return out
+
+
+@njit(cache=True)
+def verdict_packed(q, passive, main_map, passive_map, offsets, floats, ints, meta, pad, sure_depth):
+    """One configuration's verdict with the tables packed in three arrays (`pack`) and the joint values
+    made here (values = q . main_map + passive . passive_map + offsets): a call from Python costs a few
+    microseconds instead of forty arguments' and a numpy product's worth (a planner's state check)."""
+    values = offsets.copy()
+    for j in range(values.shape[0]):
+        for i in range(q.shape[0]):
+            values[j] += q[i] * main_map[i, j]
+        for i in range(passive.shape[0]):
+            values[j] += passive[i] * passive_map[i, j]
+    return verdict_one(values,
+                _i1(ints, meta, 0), _f3(floats, meta, 1), _f2(floats, meta, 2),
+                _i1(ints, meta, 3), _f2(floats, meta, 4), _f2(floats, meta, 5),
+                _f1(floats, meta, 6), _f3(floats, meta, 7), _f2(floats, meta, 8),
+                _i1(ints, meta, 9), _f3(floats, meta, 10), _f2(floats, meta, 11),
+                _i1(ints, meta, 12), _f2(floats, meta, 13), _f1(floats, meta, 14),
+                _f3(floats, meta, 15), _i1(ints, meta, 16), _f3(floats, meta, 17),
+                _i1(ints, meta, 18), _f2(floats, meta, 19), _f1(floats, meta, 20),
+                _i2(ints, meta, 21), _i1(ints, meta, 22), _f3(floats, meta, 23),
+                _i1(ints, meta, 24), _f3(floats, meta, 25), _i1(ints, meta, 26),
+                _i2(ints, meta, 27), _i1(ints, meta, 28), _f3(floats, meta, 29),
+                _i1(ints, meta, 30), _f3(floats, meta, 31), _i1(ints, meta, 32),
+                _f2(floats, meta, 33), _f1(floats, meta, 34), _i2(ints, meta, 35),
+                _f2(floats, meta, 36), _f1(floats, meta, 37), _i1(ints, meta, 38),
+                _i1(ints, meta, 39),
+                pad, sure_depth)
+
+
+# name:kind of verdict_one's tables, in order (f float, i int; the number: dimensions)
+PACKING = [
+    'parent:i1', 'origin_r:f3', 'origin_p:f2', 'kind:i1', 'axis:f2', 'base_r:f2', 'base_p:f1', 'outer_c:f3',
+    'outer_r:f2', 'outer_n:i1', 'inner_c:f3', 'inner_r:f2', 'inner_n:i1', 'bound_c:f2', 'bound_r:f1',
+    'hull_points:f3', 'hull_np:i1', 'hull_planes:f3', 'hull_nj:i1', 'hull_c:f2', 'hull_r:f1', 'link_hulls:i2',
+    'link_nh:i1', 'hull_in:f3', 'hull_in_n:i1', 'hull_in_planes:f3', 'hull_in_nj:i1', 'pairs:i2',
+    'scene_links:i1', 'el_outer:f3', 'el_outer_n:i1', 'el_inner:f3', 'el_inner_n:i1', 'el_c:f2', 'el_r:f1',
+    'touches:i2', 'group_c:f2', 'group_r:f1', 'group_start:i1', 'group_members:i1',
+]
+
+
+def pack(tables: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tables as (floats, ints, meta): meta's row k holds table k's offset and shape."""
+    floats, ints, meta = [], [], np.zeros((len(PACKING), 4), dtype=np.int64)
+    f_at = i_at = 0
+    for k, entry in enumerate(PACKING):
+        name, kind = entry.split(":")
+        array = np.ascontiguousarray(tables[name], dtype=np.float64 if kind[0] == "f" else np.int64)
+        shape = list(array.shape) + [1] * (3 - array.ndim)
+        if kind[0] == "f":
+            meta[k] = (f_at, *shape)
+            floats.append(array.ravel())
+            f_at += array.size
+        else:
+            meta[k] = (i_at, *shape)
+            ints.append(array.ravel())
+            i_at += array.size
+    return np.concatenate(floats), np.concatenate(ints), meta

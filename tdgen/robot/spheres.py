@@ -43,6 +43,7 @@ class Convex:
     planes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     sphere: tuple[np.ndarray, float] | None = None  # an exact sphere element (centre, radius)
     inside: np.ndarray | None = None  # points surely in the element as pybullet holds it (None: `points`)
+    outside: np.ndarray | None = None  # (P, 4) half-spaces around it, where known without a hull (boxes, prisms)
 
     def inner_points(self) -> np.ndarray:
         return self.points if self.inside is None else self.inside
@@ -50,12 +51,18 @@ class Convex:
     def moved(self, rot: np.ndarray, pos: np.ndarray) -> "Convex":
         points = self.points @ rot.T + pos
         inside = self.inside @ rot.T + pos if self.inside is not None else None
-        planes = self.planes.copy()
-        if len(planes):
-            planes[:, :3] = self.planes[:, :3] @ rot.T
-            planes[:, 3] = self.planes[:, 3] + planes[:, :3] @ pos
+        outside = _moved_planes(self.outside, rot, pos) if self.outside is not None else None
+        planes = _moved_planes(self.planes, rot, pos)
         sphere = (rot @ self.sphere[0] + pos, self.sphere[1]) if self.sphere is not None else None
-        return Convex(points, planes, sphere, inside)
+        return Convex(points, planes, sphere, inside, outside)
+
+
+def _moved_planes(planes: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    out = planes.copy()
+    if len(out):
+        out[:, :3] = planes[:, :3] @ rot.T
+        out[:, 3] = planes[:, 3] + out[:, :3] @ pos
+    return out
 
 
 def _box_points(half: np.ndarray) -> np.ndarray:
@@ -74,7 +81,7 @@ def _box_planes(half: np.ndarray) -> np.ndarray:
 
 def box(size) -> Convex:
     half = np.asarray(size, dtype=float) / 2
-    return Convex(_box_points(half), _box_planes(half))
+    return Convex(_box_points(half), _box_planes(half), outside=_box_planes(half))
 
 
 def _prism_planes(apothem: float, half_length: float) -> np.ndarray:
@@ -95,7 +102,8 @@ def cylinder(radius: float, length: float, hull_sides: int | None = None) -> Con
     turns = angles[::2] - np.pi / SIDES  # every other corner of the inscribed polygon
     inner_ring = inside / math.cos(math.pi / SIDES) * np.column_stack([np.cos(turns), np.sin(turns)])
     ring_points = np.vstack([np.column_stack([inner_ring, np.full(len(turns), z)]) for z in (-length / 2, length / 2)])
-    return Convex(points, _prism_planes(inside, length / 2), inside=ring_points)
+    return Convex(points, _prism_planes(inside, length / 2), inside=ring_points,
+                  outside=_prism_planes(radius, length / 2))  # the faces of the prism around it
 
 
 def sphere(radius: float) -> Convex:
@@ -303,6 +311,8 @@ def outer_planes(element: Convex) -> np.ndarray:
     """(P, 4) half-spaces whose intersection contains the element (its points' convex hull)."""
     from scipy.spatial import ConvexHull
 
+    if element.outside is not None:
+        return element.outside
     found = ConvexHull(element.points)
     planes = np.column_stack([found.equations[:, :3], -found.equations[:, 3]])
     _, first = np.unique(np.round(planes, 9), axis=0, return_index=True)  # a face cut into triangles: once
