@@ -105,14 +105,14 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
         # a scene or robot pybullet cannot load fails here, in a fraction of a second
         world = CollisionWorld(robot, scene)
         try:
-            positions = np.round(_tip_positions(world, robot, scene, q) * 1000.0, 3)
             if collision_model == "exact":
+                tips = _tip_positions(world, robot, scene, q)
                 collision = _exact(world, robot, scene, q, workers, done)
             else:
-                collision = _fast(world, robot, scene, q, workers, done)
+                collision, tips = _fast(world, robot, scene, q, workers, done)
         finally:
             world.close()
-    return Samples(q=q, positions=positions, collision=collision)
+    return Samples(q=q, positions=np.round(tips * 1000.0, 3), collision=collision)
 
 
 FAST_CHUNK = 65_536  # configurations per call of the compiled model: memory stays flat in N
@@ -127,22 +127,24 @@ def _tip_positions(world: CollisionWorld, robot: Robot, scene: Surroundings, q: 
 
 
 def _fast(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarray, workers: int | None,
-          done: Callable[[int], None]) -> np.ndarray:
-    """The sphere model's verdicts, and pybullet's for the configurations it leaves unsure."""
+          done: Callable[[int], None]) -> tuple[np.ndarray, np.ndarray]:
+    """The sphere model's verdicts, and pybullet's for the configurations it leaves unsure; and the tip
+    positions (m, base frame) from the same compiled pass."""
     from tdgen.robot.fast_collision import COLLIDES, UNSURE, FastCollision
 
     fast = FastCollision(world)
-    verdicts = []
+    verdicts, tips = [], []
     for start in range(0, len(q), FAST_CHUNK):
-        verdicts.append(fast.spheres.verdicts(q[start:start + FAST_CHUNK]))
-        decided = int(np.sum(verdicts[-1] != UNSURE))
-        done(decided)
+        verdict, tip = fast.spheres.verdicts_and_tips(q[start:start + FAST_CHUNK], robot.ee_link)
+        verdicts.append(verdict)
+        tips.append(tip)
+        done(int(np.sum(verdict != UNSURE)))
     verdict = np.concatenate(verdicts)
     collision = verdict == COLLIDES
     unsure = np.flatnonzero(verdict == UNSURE)
     if len(unsure):
         collision[unsure] = _exact(world, robot, scene, q[unsure], workers, done)
-    return collision
+    return collision, np.vstack(tips)
 
 
 def _exact(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarray, workers: int | None,

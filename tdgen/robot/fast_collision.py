@@ -187,15 +187,25 @@ class SphereModel:
 
     def verdicts(self, q: np.ndarray) -> np.ndarray:
         """(N, n) main-joint values (SI) -> (N,) FREE, COLLIDES or UNSURE; memory grows with CHUNK, not N."""
+        return self._run(q, -1)[0]
+
+    def verdicts_and_tips(self, q: np.ndarray, tip: str) -> tuple[np.ndarray, np.ndarray]:
+        """`verdicts`, and link `tip`'s origins in the robot's base frame (m) from the same pass."""
+        out, tips = self._run(q, self.frames.names.index(tip))
+        return out, self.frames.to_base(tips)
+
+    def _run(self, q: np.ndarray, slot: int) -> tuple[np.ndarray, np.ndarray]:
         from tdgen.robot import sphere_kernel
 
         q = np.atleast_2d(np.asarray(q, dtype=float))
         out = np.empty(len(q), dtype=np.int8)
+        tips = np.empty((len(q) if slot >= 0 else 1, 3))
         for start in range(0, len(q), CHUNK):
             values = self.frames.values(q[start:start + CHUNK])
+            where = tips[start:start + CHUNK] if slot >= 0 else tips
             with _PARALLEL:
-                out[start:start + CHUNK] = sphere_kernel.verdicts(values, *self._args)
-        return out
+                out[start:start + CHUNK] = sphere_kernel.verdicts(values, *self._args, slot, where)  # type: ignore[call-arg]
+        return out, tips
 
     def verdicts_here(self, q: np.ndarray) -> np.ndarray:
         """`verdicts` on this thread, without the cores' start-up: for a few dozen states (a segment)."""

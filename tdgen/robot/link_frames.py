@@ -95,7 +95,11 @@ class LinkFrames:
         t = self.tables()
         world = sphere_kernel.tips(self.values(q), t["parent"], t["origin_r"], t["origin_p"], t["kind"], t["axis"],
                                    t["base_r"], t["base_p"], self.names.index(link))
-        return (world - self._base_pos) @ self._base_rot
+        return self.to_base(world)
+
+    def to_base(self, points: np.ndarray) -> np.ndarray:
+        """World points (N, 3) -> the robot's base frame."""
+        return (points - self._base_pos) @ self._base_rot
 
     def frames(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = np.atleast_2d(np.asarray(q, dtype=float))

@@ -302,7 +302,7 @@ def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
              hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
              hull_in, hull_in_n, hull_in_planes, hull_in_nj,
              pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-             group_c, group_r, group_start, group_members, pad, sure_depth):
+             group_c, group_r, group_start, group_members, pad, sure_depth, tip, tips_out):
     n = values.shape[0]
     count = parent.shape[0]
     out = np.zeros(n, dtype=np.int8)
@@ -325,6 +325,8 @@ def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                           pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
                           group_c, group_r, group_start, group_members, pad, sure_depth, rot, pos, tmp, ow, iw, bw,
                           hw, eye, zero)
+            if tip >= 0:  # the tip's position from the same frames: the sampled points
+                tips_out[s] = pos[tip]
     return out
 
 

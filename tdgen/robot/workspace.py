@@ -9,10 +9,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 from scipy.spatial import ConvexHull, Delaunay, QhullError
+
+if TYPE_CHECKING:
+    import trimesh
 
 ALPHA_SPACINGS = 3.0  # default alpha radius, in typical point spacings
 
@@ -23,8 +26,16 @@ class WorkspaceError(Exception):
 
 @dataclass(frozen=True)
 class Solid:
-    mesh: trimesh.Trimesh
-    volume: float  # in the points' unit, cubed
+    vertices: np.ndarray  # (V, 3)
+    faces: np.ndarray     # (F, 3) vertex indices, counter-clockwise seen from outside
+    volume: float         # in the points' unit, cubed
+
+    @property
+    def mesh(self) -> "trimesh.Trimesh":
+        """The solid as a trimesh mesh (trimesh is imported here, not by `twinmesh tdgen`: a third of a second)."""
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices, self.faces, process=False)
 
 
 def bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -55,7 +66,7 @@ def convex_hull(points: np.ndarray) -> Solid:
     normals = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
     inward = np.einsum("ij,ij->i", normals, hull.equations[:, :3]) < 0
     faces[inward] = faces[inward][:, ::-1]
-    return Solid(_compact(p, faces), float(hull.volume))
+    return Solid(*_compact(p, faces), float(hull.volume))
 
 
 def alpha_shape(points: np.ndarray, radius: float | None = None) -> Solid | None:
@@ -95,20 +106,25 @@ def alpha_shape(points: np.ndarray, radius: float | None = None) -> Solid | None
     p0, p1, p2 = (points[faces[:, k]] for k in range(3))
     towards_opposite = np.einsum("ij,ij->i", np.cross(p1 - p0, p2 - p0), opposite - p0) > 0
     faces[towards_opposite] = faces[towards_opposite][:, ::-1]
-    return Solid(_compact(points, faces), float(np.abs(six_volume[keep]).sum() / 6))
+    return Solid(*_compact(points, faces), float(np.abs(six_volume[keep]).sum() / 6))
 
 
-def _compact(points: np.ndarray, faces: np.ndarray) -> trimesh.Trimesh:
-    """A mesh of only the vertices the faces use."""
+def _compact(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) of only the vertices the faces use."""
     used, inverse = np.unique(faces, return_inverse=True)
-    return trimesh.Trimesh(points[used], inverse.reshape(faces.shape), process=False)
+    return points[used], inverse.reshape(faces.shape)
 
 
 def write_stl(solid: Solid, path: Path) -> None:
     """Binary STL with facet normals."""
-    data = solid.mesh.export(file_type="stl")
-    assert isinstance(data, bytes), "trimesh exports STL as bytes"
-    path.write_bytes(data)
+    triangles = solid.vertices[solid.faces]                                       # (F, 3, 3)
+    normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    lengths = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = np.divide(normals, lengths, out=np.zeros_like(normals), where=lengths > 0)
+    facets = np.zeros(len(triangles), dtype=[("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+    facets["normal"], facets["corners"] = normals, triangles
+    header = b"twinmesh workspace (binary STL)".ljust(80, b" ")
+    path.write_bytes(header + np.uint32(len(facets)).tobytes() + facets.tobytes())
 
 
 def read_points_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:

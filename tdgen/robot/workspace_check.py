@@ -14,12 +14,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 from scipy.spatial import cKDTree
 
 from tdgen.robot.workspace import convex_hull, qhull, read_points_csv
+
+if TYPE_CHECKING:
+    import trimesh
 
 DEFAULT_K = 20
 DEFAULT_RADIUS_MM = 100.0
@@ -46,7 +49,7 @@ class Workspace:
         self.collision = np.asarray(collision, dtype=bool)
         free = self.positions[~self.collision]
         self._hull = qhull(free)
-        self._mesh: trimesh.Trimesh | None = None
+        self._mesh: "trimesh.Trimesh | None" = None
         self._tree = cKDTree(self.positions)
 
     @classmethod
@@ -73,6 +76,8 @@ class Workspace:
             return -worst  # inside a convex solid, the nearest facet plane is the nearest surface
         if self._mesh is None:
             self._mesh = convex_hull(self.positions[~self.collision]).mesh
+        import trimesh  # here, not at import: `twinmesh tdgen` and the robots start a third of a second sooner
+
         return -float(trimesh.proximity.closest_point(self._mesh, np.atleast_2d(point))[1][0])
 
     def collision_probability(self, point: np.ndarray, k: int = DEFAULT_K,
