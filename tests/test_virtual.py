@@ -283,14 +283,21 @@ def test_read_only_numbers_drift_within_their_bounds_and_a_bridged_name_is_named
         process.wait(timeout=30)
 
 
-def test_up_thing_adds_a_virtual_thing_to_the_lab_it_starts(tmp_path):
+def test_up_thing_adds_a_virtual_thing_to_the_lab_it_starts_and_its_recording(tmp_path):
+    from test_recorder import scalars, wait_for_line
+
     path = next(p for p in CORPUS.values() if p.name == "virtual_light_left.td.json")
-    lab = start_lab(tmp_path, "lights", things={"thesis-light"}, extra_args=("--thing", f"thesis-light={path}"))
+    recording = tmp_path / "lab.rrd"
+    lab = start_lab(tmp_path, "lights", things={"thesis-light"},
+                    extra_args=("--thing", f"thesis-light={path}", "--record", str(recording)))
     try:
+        wait_for_line(lab.log, "recording to", lab.proc)
         assert "thesis-light" in lab.cli("things").stdout.split()
         assert httpx.put(f"{lab.http}/thesis-light/properties/lightState", json=True, timeout=30).status_code == 204
         assert httpx.get(f"{lab.http}/thesis-light/properties/lightState", timeout=30).json() is True
         taken = lab.cli("up", "lights", "--thing", f"light-left={path}", "--no-http", "--no-view")
         assert taken.returncode == 2 and "light-left" in taken.stderr and "already has" in taken.stderr
     finally:
-        lab.stop()
+        assert lab.stop()
+    # the recorder (and so the live view, which shows what it records) has the virtual Thing like the twins
+    assert scalars(recording, "/things/thesis-light/properties/lightState")[-1] == 1.0

@@ -8,7 +8,8 @@ their own worlds:
 - before: the check of the first release: inside the hull, neighbour collision probability <= 0.5,
   an IK configuration free of collision; then a straight joint-space move that nobody checks;
 - now: `RobotTwin.move_to_cartesian` (the hull, IK candidates, collision, a densely checked straight
-  path or an OMPL-planned one within 1 s).
+  path or an OMPL-planned one within 1 s), once on pybullet's exact collision test and once on the fast
+  collision model (the default; `tdgen.robot.fast_collision`).
 
 Figures per case, side by side: acceptance rate; refusals by reason; false refusals (refused, yet a
 generous independent search finds a collision-free configuration and path from where the robot
@@ -142,11 +143,12 @@ def run_case(case: Case, n_targets: int, samples: int, budget: float, verify: in
     generous_checker = PathChecker(CollisionWorld(robot, scene))
     rate = checks_per_second(generous_checker, robot)
     tallies = {}
-    for label in ("before", "now"):
+    for label in ("before", "exact", "fast"):
         world = World(speed=None)
         build_into(case.scene, world.client)
         world.start()
-        twin = RobotTwin(world, robot, "bench", case.base, case.scene)
+        twin = RobotTwin(world, robot, "bench", case.base, case.scene,
+                         collision_model="fast" if label == "fast" else "exact")
         twin.set_workspace(workspace)
         tally = Tally()
         refused_at: list[tuple[np.ndarray, np.ndarray]] = []
@@ -190,10 +192,10 @@ def run_case(case: Case, n_targets: int, samples: int, budget: float, verify: in
         tallies[label] = tally
     referee.world.close()
     generous_checker.world.close()
-    return tallies["before"], tallies["now"], rate
+    return tallies["before"], tallies["exact"], tallies["fast"], rate
 
 
-def report(case: Case, before: Tally, now: Tally, n: int, rate: float, budget: float) -> None:
+def report(case: Case, before: Tally, now: Tally, fast: Tally, n: int, rate: float, budget: float) -> None:
     def pct(k: int, of: int) -> str:
         return f"{k} ({k / of:.1%})" if of else "0"
 
@@ -205,20 +207,22 @@ def report(case: Case, before: Tally, now: Tally, n: int, rate: float, budget: f
         return (f"{t.false_refusals} of {t.refusals_verified} re-searched: ~{share * total:.0f} "
                 f"({share * total / n:.1%} of targets)")
 
+    def reasons(t: Tally) -> str:
+        return ", ".join(f"{k} {v}" for k, v in sorted(t.refused.items())) or "-"
+
     rows = [
-        ("accepted", pct(before.accepted, n), pct(now.accepted, n)),
-        ("refused by reason", ", ".join(f"{k} {v}" for k, v in sorted(before.refused.items())) or "-",
-         ", ".join(f"{k} {v}" for k, v in sorted(now.refused.items())) or "-"),
-        (f"false refusals (IK restarts + OMPL {budget:g} s)", false(before), false(now)),
-        (f"unsafe acceptances (re-checked at {STEP_MM / 10:g} mm)", pct(before.unsafe, max(before.accepted, 1)),
-         pct(now.unsafe, max(now.accepted, 1))),
-        ("planned (not straight)", "-", pct(now.planned, max(now.accepted, 1))),
-        ("decision time p50 / p99 (ms)", _p(before.ms), _p(now.ms)),
+        ("accepted", pct(before.accepted, n), pct(now.accepted, n), pct(fast.accepted, n)),
+        ("refused by reason", reasons(before), reasons(now), reasons(fast)),
+        (f"false refusals (IK restarts + OMPL {budget:g} s)", false(before), false(now), false(fast)),
+        (f"unsafe acceptances (re-checked at {STEP_MM / 10:g} mm, exact test)", pct(before.unsafe, max(before.accepted, 1)),
+         pct(now.unsafe, max(now.accepted, 1)), pct(fast.unsafe, max(fast.accepted, 1))),
+        ("planned (not straight)", "-", pct(now.planned, max(now.accepted, 1)), pct(fast.planned, max(fast.accepted, 1))),
+        ("decision time p50 / p99 (ms)", _p(before.ms), _p(now.ms), _p(fast.ms)),
     ]
-    print(f"\n### {case.name}, {n} targets; collision checks: {rate:,.0f} per second\n")
-    print("| | before (straight, unchecked) | now (checked path) |\n|---|---|---|")
-    for name, a, b in rows:
-        print(f"| {name} | {a} | {b} |")
+    print(f"\n### {case.name}, {n} targets; exact collision checks: {rate:,.0f} per second\n")
+    print("| | before (straight, unchecked) | now, exact test | now, fast model |\n|---|---|---|---|")
+    for name, a, b, c in rows:
+        print(f"| {name} | {a} | {b} | {c} |")
 
 
 def _p(ms: list[float]) -> str:
@@ -237,8 +241,8 @@ def main() -> None:
     for case in cases():
         if args.case and case.name not in args.case:
             continue
-        before, now, rate = run_case(case, args.targets, args.samples, args.generous, args.verify)
-        report(case, before, now, args.targets, rate, args.generous)
+        before, now, fast, rate = run_case(case, args.targets, args.samples, args.generous, args.verify)
+        report(case, before, now, fast, args.targets, rate, args.generous)
 
 
 if __name__ == "__main__":
