@@ -60,18 +60,19 @@ def _dist2(a, i, b, j):
 
 
 @njit(cache=True)
-def _beyond(planes, n_planes, rot, pos, ka, points, n_points, kb, pad):
-    """A face of a hull of link ka with every corner of a hull of link kb beyond it by more than `pad`."""
+def _beyond(planes, n_planes, plane_rot, plane_pos, points, n_points, rot_b, pos_b, pad):
+    """A face (half-spaces in the frame plane_rot, plane_pos) with every corner of a hull (its link's
+    frame rot_b, pos_b) beyond it by more than `pad`: the two are apart."""
     for j in range(n_planes):
-        nx = rot[ka, 0, 0] * planes[j, 0] + rot[ka, 0, 1] * planes[j, 1] + rot[ka, 0, 2] * planes[j, 2]
-        ny = rot[ka, 1, 0] * planes[j, 0] + rot[ka, 1, 1] * planes[j, 1] + rot[ka, 1, 2] * planes[j, 2]
-        nz = rot[ka, 2, 0] * planes[j, 0] + rot[ka, 2, 1] * planes[j, 1] + rot[ka, 2, 2] * planes[j, 2]
-        offset = planes[j, 3] + nx * pos[ka, 0] + ny * pos[ka, 1] + nz * pos[ka, 2] + pad
-        # the normal in link kb's frame: corners need no moving
-        lx = rot[kb, 0, 0] * nx + rot[kb, 1, 0] * ny + rot[kb, 2, 0] * nz
-        ly = rot[kb, 0, 1] * nx + rot[kb, 1, 1] * ny + rot[kb, 2, 1] * nz
-        lz = rot[kb, 0, 2] * nx + rot[kb, 1, 2] * ny + rot[kb, 2, 2] * nz
-        lo = offset - (pos[kb, 0] * nx + pos[kb, 1] * ny + pos[kb, 2] * nz)
+        nx = plane_rot[0, 0] * planes[j, 0] + plane_rot[0, 1] * planes[j, 1] + plane_rot[0, 2] * planes[j, 2]
+        ny = plane_rot[1, 0] * planes[j, 0] + plane_rot[1, 1] * planes[j, 1] + plane_rot[1, 2] * planes[j, 2]
+        nz = plane_rot[2, 0] * planes[j, 0] + plane_rot[2, 1] * planes[j, 1] + plane_rot[2, 2] * planes[j, 2]
+        offset = planes[j, 3] + nx * plane_pos[0] + ny * plane_pos[1] + nz * plane_pos[2] + pad
+        # the normal in the hull's frame: its corners need no moving
+        lx = rot_b[0, 0] * nx + rot_b[1, 0] * ny + rot_b[2, 0] * nz
+        ly = rot_b[0, 1] * nx + rot_b[1, 1] * ny + rot_b[2, 1] * nz
+        lz = rot_b[0, 2] * nx + rot_b[1, 2] * ny + rot_b[2, 2] * nz
+        lo = offset - (pos_b[0] * nx + pos_b[1] * ny + pos_b[2] * nz)
         apart = True
         for v in range(n_points):
             if points[v, 0] * lx + points[v, 1] * ly + points[v, 2] * lz <= lo:
@@ -131,25 +132,6 @@ def _sphere_in(centres, i, radius, planes, n_planes, depth):
 
 
 @njit(cache=True)
-def _apart_from_element(planes, n_planes, rot, pos, k, points, n_points, pad):
-    """A face of a scene element (world frame) with every corner of a hull of link k beyond it."""
-    for j in range(n_planes):
-        nx, ny, nz = planes[j, 0], planes[j, 1], planes[j, 2]
-        lx = rot[k, 0, 0] * nx + rot[k, 1, 0] * ny + rot[k, 2, 0] * nz
-        ly = rot[k, 0, 1] * nx + rot[k, 1, 1] * ny + rot[k, 2, 1] * nz
-        lz = rot[k, 0, 2] * nx + rot[k, 1, 2] * ny + rot[k, 2, 2] * nz
-        lo = planes[j, 3] + pad - (pos[k, 0] * nx + pos[k, 1] * ny + pos[k, 2] * nz)
-        apart = True
-        for v in range(n_points):
-            if points[v, 0] * lx + points[v, 1] * ly + points[v, 2] * lz <= lo:
-                apart = False
-                break
-        if apart:
-            return True
-    return False
-
-
-@njit(cache=True)
 def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
          outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
          hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
@@ -204,9 +186,11 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                     return 1
                 if maybe:
                     continue
-                if _beyond(hull_planes[ha], hull_nj[ha], rot, pos, a, hull_points[hb], hull_np[hb], b, pad):
+                if _beyond(hull_planes[ha], hull_nj[ha], rot[a], pos[a], hull_points[hb], hull_np[hb], rot[b], pos[b],
+                           pad):
                     continue
-                if _beyond(hull_planes[hb], hull_nj[hb], rot, pos, b, hull_points[ha], hull_np[ha], a, pad):
+                if _beyond(hull_planes[hb], hull_nj[hb], rot[b], pos[b], hull_points[ha], hull_np[ha], rot[a], pos[a],
+                           pad):
                     continue
                 maybe = True
     # the robot with the scene
@@ -253,7 +237,7 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                     continue
                 for x in range(link_nh[k]):
                     h = link_hulls[k, x]
-                    if not _apart_from_element(el_outer[e], el_outer_n[e], rot, pos, k, hull_points[h], hull_np[h], pad):
+                    if not _beyond(el_outer[e], el_outer_n[e], eye, zero, hull_points[h], hull_np[h], rot[k], pos[k], pad):
                         maybe = True
                         break
     return 2 if maybe else 0
