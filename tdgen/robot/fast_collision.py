@@ -133,12 +133,21 @@ class SphereModel:
         points = np.zeros((len(hulls), width, 3))
         for h, (_, p) in enumerate(hulls):
             points[h, :len(p)] = p
-        faces = [outer_planes(Convex(p)) for _, p in hulls]
+        faces = [outer_planes(e) for _, e in elements]  # a box's, a prism's or a k-DOP's faces, else the hull's
         centres = np.array([(p.min(axis=0) + p.max(axis=0)) / 2 for _, p in hulls]).reshape(-1, 3)
         per_link = [[h for h, (k, _) in enumerate(hulls) if k == slot] for slot in range(links)]
         link_hulls = np.full((links, max([len(h) for h in per_link] + [1])), -1, dtype=np.int64)
         for slot, hs in enumerate(per_link):
             link_hulls[slot, :len(hs)] = hs
+        exact = [e.exact if e.exact is not None else (e.points, f) for (_, e), f in zip(elements, faces)]
+        exact_width = max([len(p) for p, _ in exact] + [1])
+        exact_points = np.zeros((len(exact), exact_width, 3))
+        for h, (p, _) in enumerate(exact):
+            exact_points[h, :len(p)] = p
+        tables |= {"fine_points": exact_points, "fine_np": np.array([len(p) for p, _ in exact], dtype=np.int64),
+                   "fine_planes": _planes([f for _, f in exact]),
+                   "fine_nj": np.array([len(f) for _, f in exact], dtype=np.int64),
+                   "coarse": np.array([e.exact is not None for _, e in elements], dtype=np.int64)}
         return {"hull_points": points, "hull_np": np.array([len(p) for _, p in hulls], dtype=np.int64),
                 "hull_planes": _planes(faces), "hull_nj": np.array([len(f) for f in faces], dtype=np.int64),
                 "hull_c": centres,
@@ -183,7 +192,8 @@ class SphereModel:
              "inner_c", "inner_r", "inner_n", "bound_c", "bound_r", "hull_points", "hull_np", "hull_planes", "hull_nj",
              "hull_c", "hull_r", "link_hulls", "link_nh", "hull_in", "hull_in_n", "hull_in_planes", "hull_in_nj",
              "pairs", "scene_links", "el_outer", "el_outer_n", "el_inner", "el_inner_n", "el_c", "el_r", "touches",
-             "group_c", "group_r", "group_start", "group_members")  # the compiled loop's arguments after the values
+             "group_c", "group_r", "group_start", "group_members", "fine_points", "fine_np", "fine_planes", "fine_nj",
+             "coarse")  # the compiled loop's arguments after the values
 
     def verdicts(self, q: np.ndarray) -> np.ndarray:
         """(N, n) main-joint values (SI) -> (N,) FREE, COLLIDES or UNSURE; memory grows with CHUNK, not N."""
@@ -275,10 +285,15 @@ class FastCollision:
     def first_collision(self, states: np.ndarray) -> bool:
         """Does any of these states (K, n) collide? The spheres judge all at once on this thread; the
         exact test then the unsure ones in the order given (a segment's bisection order), to the first."""
-        verdict = self.spheres.verdicts_here(states)
-        if np.any(verdict == COLLIDES):
-            return True
-        for k in np.flatnonzero(verdict == UNSURE):
+        unsure = []
+        start, size = 0, 4
+        while start < len(states):  # growing slices: a colliding segment is usually found out in the first
+            verdict = self.spheres.verdicts_here(states[start:start + size])
+            if np.any(verdict == COLLIDES):
+                return True
+            unsure += [start + k for k in np.flatnonzero(verdict == UNSURE)]
+            start, size = start + size, size * 4
+        for k in unsure:
             self.unsure += 1
             if self.world.collides(states[k]):
                 return True

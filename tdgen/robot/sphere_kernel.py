@@ -137,7 +137,8 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
          hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
          hull_in, hull_in_n, hull_in_planes, hull_in_nj,
          pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-         group_c, group_r, group_start, group_members, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero):
+         group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+         pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero):
     count = parent.shape[0]
     _frames(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, rot, pos, tmp)
     for k in range(count):
@@ -192,6 +193,12 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                 if _beyond(hull_planes[hb], hull_nj[hb], rot[b], pos[b], hull_points[ha], hull_np[ha], rot[a], pos[a],
                            pad):
                     continue
+                if (coarse[ha] or coarse[hb]) and (  # a k-DOP could not tell: the meshes' own hulls
+                        _beyond(fine_planes[ha], fine_nj[ha], rot[a], pos[a], fine_points[hb], fine_np[hb], rot[b],
+                                pos[b], pad)
+                        or _beyond(fine_planes[hb], fine_nj[hb], rot[b], pos[b], fine_points[ha], fine_np[ha], rot[a],
+                                   pos[a], pad)):
+                    continue
                 maybe = True
     # the robot with the scene
     for k in range(count):
@@ -237,9 +244,13 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                     continue
                 for x in range(link_nh[k]):
                     h = link_hulls[k, x]
-                    if not _beyond(el_outer[e], el_outer_n[e], eye, zero, hull_points[h], hull_np[h], rot[k], pos[k], pad):
-                        maybe = True
-                        break
+                    if _beyond(el_outer[e], el_outer_n[e], eye, zero, hull_points[h], hull_np[h], rot[k], pos[k], pad):
+                        continue
+                    if coarse[h] and _beyond(el_outer[e], el_outer_n[e], eye, zero, fine_points[h], fine_np[h], rot[k],
+                                             pos[k], pad):
+                        continue
+                    maybe = True
+                    break
     return 2 if maybe else 0
 
 
@@ -249,7 +260,8 @@ def verdict_one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                 hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
                 hull_in, hull_in_n, hull_in_planes, hull_in_nj,
                 pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-                group_c, group_r, group_start, group_members, pad, sure_depth):
+                group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+         pad, sure_depth):
     """One configuration's verdict without the threads' start-up: a planner's state check."""
     count = parent.shape[0]
     return _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
@@ -257,7 +269,8 @@ def verdict_one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                 hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
                 hull_in, hull_in_n, hull_in_planes, hull_in_nj,
                 pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-                group_c, group_r, group_start, group_members, pad, sure_depth,
+                group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+         pad, sure_depth,
                 np.empty((count, 3, 3)), np.empty((count, 3)), np.empty((3, 3)),
                 np.empty((count, outer_c.shape[1], 3)), np.empty((count, inner_c.shape[1], 3)),
                 np.empty((count, 3)), np.empty((2, 3)), np.eye(3), np.zeros(3))
@@ -286,7 +299,8 @@ def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
              hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
              hull_in, hull_in_n, hull_in_planes, hull_in_nj,
              pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-             group_c, group_r, group_start, group_members, pad, sure_depth, tip, tips_out):
+             group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+         pad, sure_depth, tip, tips_out):
     n = values.shape[0]
     count = parent.shape[0]
     out = np.zeros(n, dtype=np.int8)
@@ -307,7 +321,8 @@ def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                           hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
                           hull_in, hull_in_n, hull_in_planes, hull_in_nj,
                           pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-                          group_c, group_r, group_start, group_members, pad, sure_depth, rot, pos, tmp, ow, iw, bw,
+                          group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+         pad, sure_depth, rot, pos, tmp, ow, iw, bw,
                           hw, eye, zero)
             if tip >= 0:  # the tip's position from the same frames: the sampled points
                 tips_out[s] = pos[tip]
@@ -374,7 +389,8 @@ def verdict_packed(q, passive, main_map, passive_map, offsets, floats, ints, met
                 _i1(ints, meta, 30), _f3(floats, meta, 31), _i1(ints, meta, 32),
                 _f2(floats, meta, 33), _f1(floats, meta, 34), _i2(ints, meta, 35),
                 _f2(floats, meta, 36), _f1(floats, meta, 37), _i1(ints, meta, 38),
-                _i1(ints, meta, 39),
+                _i1(ints, meta, 39), _f3(floats, meta, 40), _i1(ints, meta, 41),
+                _f3(floats, meta, 42), _i1(ints, meta, 43), _i1(ints, meta, 44),
                 pad, sure_depth)
 
 
@@ -385,7 +401,8 @@ PACKING = [
     'hull_points:f3', 'hull_np:i1', 'hull_planes:f3', 'hull_nj:i1', 'hull_c:f2', 'hull_r:f1', 'link_hulls:i2',
     'link_nh:i1', 'hull_in:f3', 'hull_in_n:i1', 'hull_in_planes:f3', 'hull_in_nj:i1', 'pairs:i2',
     'scene_links:i1', 'el_outer:f3', 'el_outer_n:i1', 'el_inner:f3', 'el_inner_n:i1', 'el_c:f2', 'el_r:f1',
-    'touches:i2', 'group_c:f2', 'group_r:f1', 'group_start:i1', 'group_members:i1',
+    'touches:i2', 'group_c:f2', 'group_r:f1', 'group_start:i1', 'group_members:i1', 'fine_points:f3', 'fine_np:i1',
+    'fine_planes:f3', 'fine_nj:i1', 'coarse:i1',
 ]
 
 

@@ -44,6 +44,7 @@ class Convex:
     sphere: tuple[np.ndarray, float] | None = None  # an exact sphere element (centre, radius)
     inside: np.ndarray | None = None  # points surely in the element as pybullet holds it (None: `points`)
     outside: np.ndarray | None = None  # (P, 4) half-spaces around it, where known without a hull (boxes, prisms)
+    exact: tuple[np.ndarray, np.ndarray] | None = None  # a mesh hull's own (corners, faces) behind a k-DOP
 
     def inner_points(self) -> np.ndarray:
         return self.points if self.inside is None else self.inside
@@ -52,9 +53,10 @@ class Convex:
         points = self.points @ rot.T + pos
         inside = self.inside @ rot.T + pos if self.inside is not None else None
         outside = _moved_planes(self.outside, rot, pos) if self.outside is not None else None
+        exact = (self.exact[0] @ rot.T + pos, _moved_planes(self.exact[1], rot, pos)) if self.exact is not None else None
         planes = _moved_planes(self.planes, rot, pos)
         sphere = (rot @ self.sphere[0] + pos, self.sphere[1]) if self.sphere is not None else None
-        return Convex(points, planes, sphere, inside, outside)
+        return Convex(points, planes, sphere, inside, outside, exact)
 
 
 def _moved_planes(planes: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> np.ndarray:
@@ -113,13 +115,56 @@ def sphere(radius: float) -> Convex:
 
 
 def hull(vertices: np.ndarray) -> Convex:
-    """The convex hull of a mesh's vertices: what pybullet collides with for a mesh."""
+    """The convex hull of a mesh's vertices: what pybullet collides with for a mesh.
+
+    A hull of many corners (a scanned or CAD mesh: hundreds) would make every test slow, so past
+    `MAX_CORNERS` it is held as two simpler polytopes: around it, the 26 faces of its k-DOP (the
+    tightest polytope with faces across the axes, the face and the body diagonals; its box is the
+    hull's own) and that polytope's corners; inside it, the hull of `MAX_CORNERS` of its corners
+    spread over it (every point of that lies in the hull)."""
     from scipy.spatial import ConvexHull
 
     found = ConvexHull(vertices)
     points = vertices[found.vertices]
     planes = np.column_stack([found.equations[:, :3], -found.equations[:, 3]])  # n.x + c <= 0 -> n.x <= -c
-    return Convex(points, planes)
+    if len(points) <= MAX_CORNERS:
+        return Convex(points, planes)
+    inside = points[_spread(points, INSIDE_CORNERS)]
+    sub = ConvexHull(inside)
+    around = np.column_stack([DOP, np.max(points @ DOP.T, axis=0)])
+    return Convex(_corners(around, points.mean(axis=0)), np.column_stack([sub.equations[:, :3], -sub.equations[:, 3]]),
+                  inside=inside, outside=around, exact=(points, _distinct(planes)))
+
+
+MAX_CORNERS = 40     # a hull with more corners is held as a k-DOP around it and a smaller hull inside it
+INSIDE_CORNERS = 24  # corners of that smaller hull
+DOP = np.array([d for d in ([1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [1, -1, 0], [1, 0, 1], [1, 0, -1], [0, 1, 1],
+                            [0, 1, -1], [1, 1, 1], [1, 1, -1], [1, -1, 1], [-1, 1, 1])
+                for d in (np.array(d) / np.linalg.norm(d), -np.array(d) / np.linalg.norm(d))])
+
+
+def _distinct(planes: np.ndarray) -> np.ndarray:
+    """The planes without repeats (a face cut into triangles is one face)."""
+    _, first = np.unique(np.round(planes, 9), axis=0, return_index=True)
+    return planes[np.sort(first)]
+
+
+def _spread(points: np.ndarray, count: int) -> np.ndarray:
+    """Indices of `count` points spread over the set (farthest-point sampling from the first)."""
+    chosen = [0]
+    gap = np.linalg.norm(points - points[0], axis=1)
+    for _ in range(count - 1):
+        chosen.append(int(np.argmax(gap)))
+        gap = np.minimum(gap, np.linalg.norm(points - points[chosen[-1]], axis=1))
+    return np.array(chosen)
+
+
+def _corners(planes: np.ndarray, interior: np.ndarray) -> np.ndarray:
+    """The corners of the polytope n.x <= d (rows (n, d)) around an interior point."""
+    from scipy.spatial import HalfspaceIntersection
+
+    found = HalfspaceIntersection(np.column_stack([planes[:, :3], -planes[:, 3]]), interior)
+    return np.unique(np.round(found.intersections, 12), axis=0)
 
 
 def _edges(points: np.ndarray) -> np.ndarray:
@@ -314,6 +359,4 @@ def outer_planes(element: Convex) -> np.ndarray:
     if element.outside is not None:
         return element.outside
     found = ConvexHull(element.points)
-    planes = np.column_stack([found.equations[:, :3], -found.equations[:, 3]])
-    _, first = np.unique(np.round(planes, 9), axis=0, return_index=True)  # a face cut into triangles: once
-    return planes[np.sort(first)]
+    return _distinct(np.column_stack([found.equations[:, :3], -found.equations[:, 3]]))
