@@ -261,7 +261,7 @@ def verdict_one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                 hull_in, hull_in_n, hull_in_planes, hull_in_nj,
                 pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
                 group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-         pad, sure_depth):
+                pad, sure_depth):
     """One configuration's verdict without the threads' start-up: a planner's state check."""
     count = parent.shape[0]
     return _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
@@ -270,7 +270,7 @@ def verdict_one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                 hull_in, hull_in_n, hull_in_planes, hull_in_nj,
                 pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
                 group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-         pad, sure_depth,
+                pad, sure_depth,
                 np.empty((count, 3, 3)), np.empty((count, 3)), np.empty((3, 3)),
                 np.empty((count, outer_c.shape[1], 3)), np.empty((count, inner_c.shape[1], 3)),
                 np.empty((count, 3)), np.empty((2, 3)), np.eye(3), np.zeros(3))
@@ -300,7 +300,7 @@ def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
              hull_in, hull_in_n, hull_in_planes, hull_in_nj,
              pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
              group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-         pad, sure_depth, tip, tips_out):
+             pad, sure_depth, tip, tips_out):
     n = values.shape[0]
     count = parent.shape[0]
     out = np.zeros(n, dtype=np.int8)
@@ -322,7 +322,7 @@ def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                           hull_in, hull_in_n, hull_in_planes, hull_in_nj,
                           pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
                           group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-         pad, sure_depth, rot, pos, tmp, ow, iw, bw,
+                          pad, sure_depth, rot, pos, tmp, ow, iw, bw,
                           hw, eye, zero)
             if tip >= 0:  # the tip's position from the same frames: the sampled points
                 tips_out[s] = pos[tip]
