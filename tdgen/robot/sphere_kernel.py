@@ -148,6 +148,57 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
         for i in range(inner_n[k]):
             _move(rot, pos, k, inner_c[k, i], iw[k], i)
     maybe = False
+    # the robot with the scene first: most colliding samples touch a body (a table), found out here
+    for k in range(count):
+        if not scene_links[k]:
+            continue
+        for g in range(group_c.shape[0]):
+            if _dist2(bw, k, group_c, g) >= (bound_r[k] + group_r[g]) ** 2:
+                continue
+            for m in range(group_start[g], group_start[g + 1]):
+                e = group_members[m]
+                if not touches[k, e]:
+                    continue
+                if _dist2(bw, k, el_c, e) >= (bound_r[k] + el_r[e]) ** 2:
+                    continue
+                if el_inner_n[e] > 0:
+                    for i in range(inner_n[k]):
+                        if inner_r[k, i] <= sure_depth:
+                            continue
+                        if _sphere_in(iw[k], i, inner_r[k, i], el_inner[e], el_inner_n[e], sure_depth):
+                            return 1
+                    for x in range(link_nh[k]):
+                        h = link_hulls[k, x]
+                        if _deep_inside(hull_in[h], hull_in_n[h], rot, pos, k, el_inner[e], el_inner_n[e], eye, zero,
+                                        sure_depth):
+                            return 1
+                if maybe:
+                    continue
+                touch = False
+                for i in range(outer_n[k]):
+                    deepest = -np.inf
+                    for j in range(el_outer_n[e]):
+                        f = ow[k, i, 0] * el_outer[e, j, 0] + ow[k, i, 1] * el_outer[e, j, 1] \
+                            + ow[k, i, 2] * el_outer[e, j, 2] - el_outer[e, j, 3]
+                        if f > deepest:
+                            deepest = f
+                    if deepest < outer_r[k, i]:
+                        touch = True
+                        break
+                if not touch:
+                    continue
+                if link_nh[k] == 0:
+                    maybe = True
+                    continue
+                for x in range(link_nh[k]):
+                    h = link_hulls[k, x]
+                    if _beyond(el_outer[e], el_outer_n[e], eye, zero, hull_points[h], hull_np[h], rot[k], pos[k], pad):
+                        continue
+                    if coarse[h] and _beyond(el_outer[e], el_outer_n[e], eye, zero, fine_points[h], fine_np[h], rot[k],
+                                             pos[k], pad):
+                        continue
+                    maybe = True
+                    break
     # the robot with itself
     for p in range(pairs.shape[0]):
         a, b = pairs[p, 0], pairs[p, 1]
@@ -200,57 +251,6 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                                    pos[a], pad)):
                     continue
                 maybe = True
-    # the robot with the scene
-    for k in range(count):
-        if not scene_links[k]:
-            continue
-        for g in range(group_c.shape[0]):
-            if _dist2(bw, k, group_c, g) >= (bound_r[k] + group_r[g]) ** 2:
-                continue
-            for m in range(group_start[g], group_start[g + 1]):
-                e = group_members[m]
-                if not touches[k, e]:
-                    continue
-                if _dist2(bw, k, el_c, e) >= (bound_r[k] + el_r[e]) ** 2:
-                    continue
-                if el_inner_n[e] > 0:
-                    for i in range(inner_n[k]):
-                        if inner_r[k, i] <= sure_depth:
-                            continue
-                        if _sphere_in(iw[k], i, inner_r[k, i], el_inner[e], el_inner_n[e], sure_depth):
-                            return 1
-                    for x in range(link_nh[k]):
-                        h = link_hulls[k, x]
-                        if _deep_inside(hull_in[h], hull_in_n[h], rot, pos, k, el_inner[e], el_inner_n[e], eye, zero,
-                                        sure_depth):
-                            return 1
-                if maybe:
-                    continue
-                touch = False
-                for i in range(outer_n[k]):
-                    deepest = -np.inf
-                    for j in range(el_outer_n[e]):
-                        f = ow[k, i, 0] * el_outer[e, j, 0] + ow[k, i, 1] * el_outer[e, j, 1] \
-                            + ow[k, i, 2] * el_outer[e, j, 2] - el_outer[e, j, 3]
-                        if f > deepest:
-                            deepest = f
-                    if deepest < outer_r[k, i]:
-                        touch = True
-                        break
-                if not touch:
-                    continue
-                if link_nh[k] == 0:
-                    maybe = True
-                    continue
-                for x in range(link_nh[k]):
-                    h = link_hulls[k, x]
-                    if _beyond(el_outer[e], el_outer_n[e], eye, zero, hull_points[h], hull_np[h], rot[k], pos[k], pad):
-                        continue
-                    if coarse[h] and _beyond(el_outer[e], el_outer_n[e], eye, zero, fine_points[h], fine_np[h], rot[k],
-                                             pos[k], pad):
-                        continue
-                    maybe = True
-                    break
     return 2 if maybe else 0
 
 
