@@ -146,3 +146,14 @@ def test_stderr_carries_only_twinmesh_s_own_lines_with_two_workers(tmp_path):
     lines = failed.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].count("$(find nosuch_description)") == 1, failed.stderr  # said once
     assert str(xacro) in lines[0] and "looked in" in lines[0] and "twinmesh-urdf" not in lines[0]
+
+
+def test_samples_are_taken_as_people_write_them_and_a_fraction_is_refused(tmp_path):
+    written = _run("tdgen", "ur10.urdf", "--samples", "2e3", "--no-progress", "--out", tmp_path / "a")
+    assert written.exit_code == 0, written.output
+    assert "ur10: 2000 samples" in written.output
+    assert len((tmp_path / "a" / "points.csv").read_text().splitlines()) == 2001  # the header and 2,000 points
+    for bad, why in (("2.5", "not a whole number"), ("lots", "not a number of samples"), ("0", "below")):
+        refused = _run("tdgen", "ur10.urdf", "--samples", bad, "--out", tmp_path / "b")
+        assert refused.exit_code == 2 and why in refused.output, refused.output
+    assert not (tmp_path / "b").exists()

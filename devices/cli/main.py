@@ -24,6 +24,7 @@ from mesh.fabric.settings import DEFAULT_ENDPOINT, MeshSettings, router_listen
 from mesh.messages.scene import DEFAULT_SAMPLES
 from mesh.process import SHOW_NATIVE, set_title
 from mesh.wot.problem import Problem
+from tdgen.cli.counts import SampleCount
 
 
 class LazyGroup(click.Group):
@@ -168,7 +169,7 @@ def _ready_timeout(things: list[str]) -> float:
               help="Serve the live 3D view (a Rerun web viewer) at HOST:PORT; its stream uses the next free port.")
 @click.option("--no-view", is_flag=True, help="Do not serve the live 3D view.")
 @click.option("--speed", default="1", show_default=True, help="Simulation speed factor, or 'max'.")
-@click.option("--samples", type=click.IntRange(min=100), metavar="N",
+@click.option("--samples", type=SampleCount(100), metavar="N",
               help=f"Random configurations each robot's workspace is sampled with [default: {DEFAULT_SAMPLES}; fewer start "
                    "faster, e.g. for a class on small machines].")
 @click.option("--tdgen-cache", type=click.Path(file_okay=False),

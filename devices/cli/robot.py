@@ -9,6 +9,7 @@ from mesh.cli.exits import usage_exit
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.scene import DEFAULT_SAMPLES
 from tdgen.cli.arm_options import ArmChoice, arm_options, mount_options
+from tdgen.cli.counts import SampleCount
 from tdgen.robot.surroundings import RobotPlacement
 
 
@@ -28,7 +29,7 @@ def _speed(value: str) -> float | None:
 @click.option("--scene-robot", metavar="NAME", help="With a world's scene.json: the robot of that scene whose place "
               "this one takes.")
 @click.option("--name", help="Thing name, a slug [default: from the URDF's robot name].")
-@click.option("--samples", type=click.IntRange(min=100), default=DEFAULT_SAMPLES, show_default=True,
+@click.option("--samples", type=SampleCount(100), default=DEFAULT_SAMPLES, show_default=True,
               help="Random joint configurations the workspace is sampled with.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Sampling seed.")
 @click.option("--calibration", type=click.Path(exists=True, dir_okay=False),

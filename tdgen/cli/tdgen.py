@@ -15,6 +15,7 @@ from mesh.http.credentials import Auth
 from mesh.messages.scene import DEFAULT_SAMPLES
 from mesh.wot.td import NOSEC
 from tdgen.cli.arm_options import ArmChoice, arm_options, mount_options
+from tdgen.cli.counts import SampleCount
 from tdgen.generate import Frame, generate
 from tdgen.robot.calibration import CalibrationError, Model
 from tdgen.robot.model import RobotError
@@ -36,7 +37,7 @@ SECURITY = {"nosec": NOSEC, "basic": Auth("basic", "").security(), "bearer": Aut
               "table-and-wall, cluttered-lab, iot-platform [default: the robot on its mounting surface].")
 @click.option("--scene-robot", metavar="NAME", help="With a world's scene.json: the robot of that scene whose place "
               "this one takes (iot-platform: uarm or dobot).")
-@click.option("--samples", type=click.IntRange(min=1), default=DEFAULT_SAMPLES, show_default=True,
+@click.option("--samples", type=SampleCount(1), default=DEFAULT_SAMPLES, show_default=True,
               help="Random joint configurations to sample.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed, same points).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), help="Output directory [default: td-<robot>].")
