@@ -251,6 +251,11 @@ class CollisionWorld:
                 found.append(pair)
         return found
 
+    def link_names(self) -> list[str]:
+        """Every link's name in pybullet's order, the base (index -1) first."""
+        count = self._pb.getNumJoints(self.body, physicsClientId=self.client)
+        return [self._link_name(i) for i in range(-1, count)]
+
     def _link_name(self, link: int) -> str:
         if link == -1:
             return self._pb.getBodyInfo(self.body, physicsClientId=self.client)[0].decode()

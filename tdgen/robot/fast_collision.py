@@ -1,5 +1,5 @@
-"""The fast collision model: "does q collide?" for thousands of configurations per numpy call, with
-pybullet's exact test deciding only what the spheres cannot.
+"""The fast collision model: "does q collide?" for thousands of configurations per compiled call
+(`sphere_kernel`), with pybullet's exact test deciding only what the spheres cannot.
 
 Every configuration gets one of three verdicts from the spheres (`tdgen.robot.spheres`): free (no
 outer shapes of a pair that counts touch: the exact test cannot find a contact), colliding (inner
@@ -10,6 +10,7 @@ bolted to the base not tested against the scene, allowed link/body pairs).
 """
 from __future__ import annotations
 
+import functools
 import threading
 
 import numpy as np
@@ -22,6 +23,15 @@ FREE, COLLIDES, UNSURE = 0, 1, 2
 CHUNK = 65536
 NO_PASSIVE = np.zeros(0)
 _PARALLEL = threading.Lock()  # numba's default threading layer takes one parallel launch at a time per process
+
+
+def _stacked(arrays: list[np.ndarray], trailing: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Arrays of different lengths as one zero-padded (K, W, *trailing) array, and their lengths."""
+    width = max([len(a) for a in arrays] + [1])
+    out = np.zeros((len(arrays), width, *trailing))
+    for k, a in enumerate(arrays):
+        out[k, :len(a)] = a
+    return out, np.array([len(a) for a in arrays], dtype=np.int64)
 
 
 def _planes(rows: list[np.ndarray]) -> np.ndarray:
@@ -65,12 +75,12 @@ class SphereModel:
         pb, client, body, robot = world._pb, world.client, world.body, world.robot
         count = pb.getNumJoints(body, physicsClientId=client)
         links = list(range(-1, count))
-        names = [world._link_name(i) for i in links]
+        names = world.link_names()
         placement = world.scene.robot
         self.frames = LinkFrames(robot, placement.position, placement.quaternion(), names)
         elements = link_elements(robot.load_path or robot.urdf_path, robot.packages)
         shapes = {i: elements.get(name) for i, name in zip(links, names)}
-        self.fallback = self._check_against_pybullet(world, links, shapes)
+        self.fallback = self._check_against_pybullet(world, self.frames, links, shapes)
         radii = world._geometry_radii(count) if self.fallback else {}
         outer, inner, hulls = [], [], []
         for slot, i in enumerate(links):
@@ -102,12 +112,8 @@ class SphereModel:
     def _sphere_tables(outer, inner) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}
         for name, groups in (("outer", outer), ("inner", inner)):
-            width = max([len(r) for _, r in groups] + [1])
-            centres, radii = np.zeros((len(groups), width, 3)), np.zeros((len(groups), width))
-            for k, (c, r) in enumerate(groups):
-                centres[k, :len(r)], radii[k, :len(r)] = c, r
-            out |= {f"{name}_c": centres, f"{name}_r": radii,
-                    f"{name}_n": np.array([len(r) for _, r in groups], dtype=np.int64)}
+            centres, counts = _stacked([c for c, _ in groups], (3,))
+            out |= {f"{name}_c": centres, f"{name}_r": _stacked([r for _, r in groups], ())[0], f"{name}_n": counts}
         # per link, one sphere around its outer spheres: the broad phase
         bound_c, bound_r = np.zeros((len(outer), 3)), np.zeros(len(outer))
         for k, (c, r) in enumerate(outer):
@@ -120,19 +126,11 @@ class SphereModel:
     def _hull_tables(elements: list[tuple[int, Convex]], links: int) -> dict[str, np.ndarray]:
         """Every element's corners and faces (link frame), where spheres cannot tell two shapes apart; and
         its points surely inside it, and half-spaces inside it, where spheres cannot tell they overlap."""
-        inside = [e.inner_points() for _, e in elements]
-        width_in = max([len(p) for p in inside] + [1])
-        points_in = np.zeros((len(inside), width_in, 3))
-        for h, p in enumerate(inside):
-            points_in[h, :len(p)] = p
-        tables = {"hull_in": points_in, "hull_in_n": np.array([len(p) for p in inside], dtype=np.int64),
-                  "hull_in_planes": _planes([e.planes for _, e in elements]),
+        points_in, counts_in = _stacked([e.inner_points() for _, e in elements], (3,))
+        tables = {"hull_in": points_in, "hull_in_n": counts_in, "hull_in_planes": _planes([e.planes for _, e in elements]),
                   "hull_in_nj": np.array([len(e.planes) for _, e in elements], dtype=np.int64)}
         hulls = [(k, e.points) for k, e in elements]
-        width = max([len(p) for _, p in hulls] + [1])
-        points = np.zeros((len(hulls), width, 3))
-        for h, (_, p) in enumerate(hulls):
-            points[h, :len(p)] = p
+        points, counts = _stacked([p for _, p in hulls], (3,))
         faces = [outer_planes(e) for _, e in elements]  # a box's, a prism's or a k-DOP's faces, else the hull's
         centres = np.array([(p.min(axis=0) + p.max(axis=0)) / 2 for _, p in hulls]).reshape(-1, 3)
         per_link = [[h for h, (k, _) in enumerate(hulls) if k == slot] for slot in range(links)]
@@ -140,15 +138,12 @@ class SphereModel:
         for slot, hs in enumerate(per_link):
             link_hulls[slot, :len(hs)] = hs
         exact = [e.exact if e.exact is not None else (e.points, f) for (_, e), f in zip(elements, faces)]
-        exact_width = max([len(p) for p, _ in exact] + [1])
-        exact_points = np.zeros((len(exact), exact_width, 3))
-        for h, (p, _) in enumerate(exact):
-            exact_points[h, :len(p)] = p
-        tables |= {"fine_points": exact_points, "fine_np": np.array([len(p) for p, _ in exact], dtype=np.int64),
+        exact_points, exact_counts = _stacked([p for p, _ in exact], (3,))
+        tables |= {"fine_points": exact_points, "fine_np": exact_counts,
                    "fine_planes": _planes([f for _, f in exact]),
                    "fine_nj": np.array([len(f) for _, f in exact], dtype=np.int64),
                    "coarse": np.array([e.exact is not None for _, e in elements], dtype=np.int64)}
-        return {"hull_points": points, "hull_np": np.array([len(p) for _, p in hulls], dtype=np.int64),
+        return {"hull_points": points, "hull_np": counts,
                 "hull_planes": _planes(faces), "hull_nj": np.array([len(f) for f in faces], dtype=np.int64),
                 "hull_c": centres,
                 "hull_r": np.array([np.max(np.linalg.norm(p - c, axis=1)) for (_, p), c in zip(hulls, centres)]),
@@ -165,13 +160,11 @@ class SphereModel:
             "el_inner_n": np.array([len(e.planes) for e in elements], dtype=np.int64), "el_c": centres, "el_r": radii}
 
     @staticmethod
-    def _check_against_pybullet(world: CollisionWorld, links: list[int],
+    def _check_against_pybullet(world: CollisionWorld, frames: LinkFrames, links: list[int],
                                 shapes: dict[int, list[Convex] | None]) -> set[int]:
         """Links whose geometry as read here is not pybullet's: another number of shapes, or outside
         pybullet's AABB of the link at one of three poses."""
         pb, client, body, robot = world._pb, world.client, world.body, world.robot
-        frames = LinkFrames(robot, world.scene.robot.position, world.scene.robot.quaternion(),
-                            [world._link_name(i) for i in links])
         lows, highs = robot.lows(), robot.highs()
         rng = np.random.default_rng(7)
         poses = np.vstack([np.clip(np.zeros(len(lows)), lows, highs), rng.uniform(lows, highs, (2, len(lows)))])
@@ -187,13 +180,6 @@ class SphereModel:
                 if not within([e.moved(rot[k, slot], pos[k, slot]) for e in shapes[i] or []], lo, hi):
                     bad.add(i)
         return bad
-
-    ORDER = ("parent", "origin_r", "origin_p", "kind", "axis", "base_r", "base_p", "outer_c", "outer_r", "outer_n",
-             "inner_c", "inner_r", "inner_n", "bound_c", "bound_r", "hull_points", "hull_np", "hull_planes", "hull_nj",
-             "hull_c", "hull_r", "link_hulls", "link_nh", "hull_in", "hull_in_n", "hull_in_planes", "hull_in_nj",
-             "pairs", "scene_links", "el_outer", "el_outer_n", "el_inner", "el_inner_n", "el_c", "el_r", "touches",
-             "group_c", "group_r", "group_start", "group_members", "fine_points", "fine_np", "fine_planes", "fine_nj",
-             "coarse")  # the compiled loop's arguments after the values
 
     def verdicts(self, q: np.ndarray) -> np.ndarray:
         """(N, n) main-joint values (SI) -> (N,) FREE, COLLIDES or UNSURE; memory grows with CHUNK, not N."""
@@ -224,14 +210,14 @@ class SphereModel:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         robot = self.frames.robot
         passive = np.atleast_2d(robot.passive(q)) if robot.passive is not None else np.zeros((len(q), 0))
-        return sphere_kernel.verdicts_packed(q, passive, *self._packing(), PAD, SURE_DEPTH)  # type: ignore[call-arg]
+        return sphere_kernel.verdicts_packed(q, passive, *self._packed, PAD, SURE_DEPTH)  # type: ignore[call-arg]
 
-    def _packing(self) -> tuple:
+    @functools.cached_property
+    def _packed(self) -> tuple:
+        """The joint-value maps and the tables packed in three arrays: the one-thread loops' arguments."""
         from tdgen.robot import sphere_kernel
 
-        if not hasattr(self, "_packed"):
-            self._packed = (*self.frames.value_maps(), *sphere_kernel.pack(self._tables))
-        return self._packed
+        return (*self.frames.value_maps(), *sphere_kernel.pack(self._tables))
 
     def verdict(self, q: np.ndarray) -> int:
         """One configuration (n,) SI -> FREE, COLLIDES or UNSURE, on this thread (a planner's hot path)."""
@@ -240,13 +226,14 @@ class SphereModel:
         q = np.asarray(q, dtype=float)
         robot = self.frames.robot
         passive = np.atleast_2d(robot.passive(q[None]))[0] if robot.passive is not None else NO_PASSIVE
-        return int(sphere_kernel.verdict_packed(q, passive, *self._packing(), PAD, SURE_DEPTH))  # type: ignore[call-arg]
+        return int(sphere_kernel.verdict_packed(q, passive, *self._packed, PAD, SURE_DEPTH))  # type: ignore[call-arg]
 
-    @property
+    @functools.cached_property
     def _args(self) -> tuple:
-        if not hasattr(self, "_arg_tuple"):
-            self._arg_tuple = (*(self._tables[k] for k in self.ORDER), PAD, SURE_DEPTH)
-        return self._arg_tuple
+        """The tables in the order the parallel loop takes them (`sphere_kernel.TABLES`), then the margins."""
+        from tdgen.robot import sphere_kernel
+
+        return (*(self._tables[name] for name in sphere_kernel.TABLES), PAD, SURE_DEPTH)
 
 
 class FastCollision:

@@ -408,6 +408,7 @@ PACKING = [
     'touches:i2', 'group_c:f2', 'group_r:f1', 'group_start:i1', 'group_members:i1', 'fine_points:f3', 'fine_np:i1',
     'fine_planes:f3', 'fine_nj:i1', 'coarse:i1',
 ]
+TABLES = tuple(entry.split(":")[0] for entry in PACKING)  # the same names: the parallel loop's arguments
 
 
 def pack(tables: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
