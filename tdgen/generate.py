@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Literal
+from typing import TYPE_CHECKING, Callable, Literal
 from urllib.parse import urlsplit
 
 import msgspec
@@ -23,12 +23,16 @@ import numpy as np
 
 from mesh.messages.scene import DEFAULT_SAMPLES
 from mesh.wot.td import NOSEC, Security
+from tdgen.robot import points_csv
 from tdgen.robot.calibration import Calibration, CalibrationError, Model, load_calibration
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import RobotPlacement, Surroundings, default_scene, encode_scene, load_scene
 from tdgen.robot.workspace import WorkspaceError, alpha_shape, bounds, convex_hull, write_stl
-from tdgen.sampling import Samples, sample_workspace, write_points_csv
+from tdgen.sampling import Samples, sample_workspace
 from tdgen.td import policy, robot_td, served_td, slug, thing_model
+
+if TYPE_CHECKING:
+    from tdgen.robot.collision import CollisionWorld
 
 Frame = Literal["twin", "real"]
 
@@ -130,7 +134,32 @@ def generate(robot: Robot | str | Path, scene: Surroundings | str | Path | None 
         assert calibration is not None, "_calibration refuses the real frame without a calibration"
         sampled = Samples(sampled.q, np.round(calibration.apply(sampled.positions), 3), sampled.collision)
     timings["sampling"] = time.perf_counter() - t
-    warnings = collision_warnings(robot, scene, sampled)
+    return write_artefacts(robot, scene, sampled, out_dir, Naming(thing, thing_id, base_url, security), seed,
+                           calibration, frame, concave, timings=timings, started=started)
+
+
+@dataclass(frozen=True)
+class Naming:
+    """What the TD is called and where it is served: the Thing's name and id, its base URL on the HTTP
+    adapter (None: a Thing Model is written), its security."""
+
+    thing: str
+    thing_id: str | None = None
+    base_url: str | None = None
+    security: Security = NOSEC
+
+
+def write_artefacts(robot: Robot, scene: Surroundings, sampled: Samples, out_dir: str | Path, naming: Naming,
+                    seed: int | None, calibration: Calibration | None = None, frame: Frame = "twin",
+                    concave: bool = False, points: bytes | None = None, timings: dict[str, float] | None = None,
+                    started: float | None = None, warnings: list[str] | None = None) -> GenerationResult:
+    """The workspace, the TD and the files of samples taken in `scene` (positions already in the TD's
+    frame). `points`: the points.csv of exactly these samples when it is at hand (a live update's), else
+    it is written from them; `warnings`: `collision_warnings` of them, if known. A generation and a live
+    update of the same samples write the same bytes."""
+    timings = {} if timings is None else timings
+    started = time.perf_counter() if started is None else started
+    warnings = collision_warnings(robot, scene, sampled) if warnings is None else warnings
 
     t = time.perf_counter()
     free = sampled.free
@@ -151,16 +180,21 @@ def generate(robot: Robot | str | Path, scene: Surroundings | str | Path | None 
     t = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    base_url = naming.base_url
     kind = "td" if base_url else "tm"
     files = {key: out / file for key, file in ((kind, f"{kind}.json"), ("robot-info", "robot-info.json"),
                                                 ("points", "points.csv"), ("workspace", "workspace.stl"),
                                                 ("scene", "scene.json"))}
     description = _description(robot, scene, sampled, seed, hull.volume, calibration, frame)
     description += "".join(f" Warning: {w}." for w in warnings)  # a lab's user reads it in the TD
-    td = robot_td(robot, low, high, name=thing, frame=frame, thing_id=thing_id, description=description)
-    files[kind].write_bytes(_json(served_td(td, base_url, security) if base_url else thing_model(td, thing, security)))
+    td = robot_td(robot, low, high, name=naming.thing, frame=frame, thing_id=naming.thing_id, description=description)
+    files[kind].write_bytes(_json(served_td(td, base_url, naming.security) if base_url
+                                  else thing_model(td, naming.thing, naming.security)))
     files["robot-info"].write_bytes(_json(robot.info()))
-    write_points_csv(files["points"], robot, sampled)
+    if points is None:
+        points_csv.write(files["points"], robot, sampled.positions, sampled.collision, sampled.q)
+    else:
+        files["points"].write_bytes(points)
     write_stl(hull, files["workspace"])
     files["scene"].write_bytes(encode_scene(scene))
     if concave_solid is not None:
@@ -213,10 +247,12 @@ def _hangs(robot: Robot) -> bool:
     return bool(ForwardKinematics(robot).positions(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))[2] < 0)
 
 
-def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples) -> list[str]:
+def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, world: CollisionWorld | None = None,
+                       at_rest: list[str] | None = None) -> list[str]:
     """When most samples collide, say so and name the link pairs that collide most, and whether the
     robot collides already at rest (joints at 0, within their limits): then the URDF's collision
-    meshes overlap by design, the usual cause."""
+    meshes overlap by design, the usual cause. `world`: a collision world of `scene` to ask (else one
+    is made); `at_rest`: `robot_at_rest(robot)`, if known."""
     share = float(samples.collision.mean()) if len(samples.collision) else 0.0
     if share <= MOSTLY_COLLIDING:
         return []
@@ -224,17 +260,14 @@ def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples) -> l
 
     from tdgen.robot.collision import CollisionWorld
 
-    world = CollisionWorld(robot, scene)
+    asked = world or CollisionWorld(robot, scene)
     try:
         colliding = samples.q[samples.collision][:PAIR_SAMPLES]
-        counts = Counter(pair for q in colliding for pair in world.what_collides(q))
+        counts = Counter(pair for q in colliding for pair in asked.what_collides(q))
     finally:
-        world.close()
-    alone = CollisionWorld(robot, msgspec.structs.replace(scene, bodies=[]))  # at rest: the robot's own meshes
-    try:
-        at_rest = alone.what_collides(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))
-    finally:
-        alone.close()
+        if world is None:
+            asked.close()
+    at_rest = robot_at_rest(robot, scene) if at_rest is None else at_rest
     top = ", ".join(f"{pair} ({n * 100 // max(len(colliding), 1)} %)" for pair, n in counts.most_common(5))
     out = [f"{share:.0%} of the samples collide (the workspace is made of the other {1 - share:.0%}); the pairs "
            f"that collide most: {top or 'none named'}"]
@@ -242,6 +275,17 @@ def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples) -> l
         out.append(f"{robot.name} collides at rest (every joint at 0): {', '.join(at_rest)}; its collision "
                    "meshes overlap by design, which a tool like MoveIt's SRDF disables per pair")
     return out
+
+
+def robot_at_rest(robot: Robot, scene: Surroundings) -> list[str]:
+    """The robot's own colliding pairs with every joint at 0 (within its limits), no scene around it."""
+    from tdgen.robot.collision import CollisionWorld
+
+    alone = CollisionWorld(robot, msgspec.structs.replace(scene, bodies=[]))
+    try:
+        return alone.what_collides(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))
+    finally:
+        alone.close()
 
 
 def _thing_name(base_url: str | None, name: str | None) -> str | None:

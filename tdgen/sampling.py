@@ -20,7 +20,6 @@ import multiprocessing
 import os
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -164,11 +163,3 @@ def _exact(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarr
                 done(len(chunk))
     return np.concatenate(flags) if flags else np.zeros(0, dtype=bool)
 
-
-def write_points_csv(path: Path, robot: Robot, samples: Samples) -> None:
-    """points.csv: `x,y,z,collision,<joint names>`; mm, 0/1, then deg or mm per joint."""
-    joints = robot.to_user_units(samples.q)
-    header = ",".join(["x", "y", "z", "collision", *(j.name for j in robot.joints)])
-    table = np.column_stack([samples.positions, samples.collision.astype(int), joints])
-    fmt = ["%.3f"] * 3 + ["%d"] + ["%.6f"] * joints.shape[1]
-    np.savetxt(path, table, fmt=fmt, delimiter=",", header=header, comments="")

@@ -20,6 +20,7 @@ from tdschema import assert_valid_td
 
 from devices.sim.robot import workspace_from_csv
 from mesh.messages.relations import POINTS, SCENE
+from tdgen.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM
 
 SAMPLES = "4000"
 PROBLEM = "application/problem+json"
@@ -170,6 +171,31 @@ def test_an_obstacle_shrinks_the_ur10s_workspace_and_observers_notice(lab, http)
     td2 = ur10_td(http, 2)
     assert np.array_equal(_points(http, td2).collision, points0.collision)  # the same surroundings again
     assert http.get("/world/properties/obstacles").json() == []
+
+
+def test_a_box_reaches_the_ur10s_td_by_a_live_update_and_the_next_plan_is_checked_against_it(lab, http):
+    """The tdgen service follows the box by a live update (only the samples it can touch checked), and a
+    plan asked right after `addObstacle` returns, before anyone has seen the new TD, is answered from the
+    new scene's workspace: the collision probability of the target's sampled neighbours is the new one."""
+    version = http.get("/ur10/files/twin.json").json()["version"]
+    points0 = _points(http, ur10_td(http, version))
+    crate = {**CRATE, "name": "live-crate"}
+    free0 = ~points0.collision
+    inside = points0.positions[free0 & (np.abs(points0.positions - ur10_frame(crate["position"])).max(axis=1) < 120)]
+    target = inside[0]
+    before = points0.check(target, DEFAULT_K, DEFAULT_RADIUS_MM, 1.0).collision_probability
+
+    assert http.post("/world/actions/addObstacle", json=crate).status_code in (200, 204)
+    answer = http.post("/ur10/actions/planMove", json=dict(zip("xyz", map(float, target)))).json()
+    answer = answer.get("extra", answer)  # refused (422: the box is there) or planned
+    points1 = _points(http, ur10_td(http, version + 1))
+    after = points1.check(target, DEFAULT_K, DEFAULT_RADIUS_MM, 1.0).collision_probability
+    assert after != before, "the box changed no neighbour of the target"
+    assert answer["collision_probability"] == pytest.approx(after), answer
+    status = http.get("/tdgen/properties/robots").json()["ur10"]
+    assert status["version"] == version + 1 and status.get("live") is True, status
+    assert http.post("/world/actions/removeObstacle", json={"name": "live-crate"}).status_code == 200
+    assert np.array_equal(_points(http, ur10_td(http, version + 2)).collision, points0.collision)
 
 
 def ur10_frame(scene_xyz: list[float]) -> np.ndarray:

@@ -9,7 +9,7 @@ import trimesh
 
 from tdgen.generate import generate
 from tdgen.robot.calibration import CalibrationError, fit_calibration, load_calibration, read_pairs
-from tdgen.robot.workspace import read_points_csv
+from tdgen.robot.points_csv import read as read_points_csv
 
 K, B = np.array([1.02, -0.98, 0.5]), np.array([12.0, -40.0, 100.0])
 

@@ -14,8 +14,8 @@ from tdschema import assert_valid_td, assert_valid_tm
 from mesh.messages.relations import POINTS, SCENE, TWIN, WORKSPACE
 from tdgen.generate import generate
 from tdgen.robot.model import Robot
+from tdgen.robot.points_csv import read as read_points_csv
 from tdgen.robot.surroundings import load_scene
-from tdgen.robot.workspace import read_points_csv
 from tdgen.robot.workspace_check import Workspace
 
 ROBOTS = ["franka_panda/panda.urdf", "kuka_iiwa/model.urdf", "xarm/xarm6_robot.urdf", "ur10.urdf"]

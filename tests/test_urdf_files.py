@@ -231,7 +231,7 @@ def _visual_only_arm(tmp_path: Path, geometry: str) -> Path:
 
 def test_links_without_collision_geometry_collide_with_their_visual_one_and_say_so(tmp_path):
     from tdgen.generate import generate
-    from tdgen.robot.workspace import read_points_csv
+    from tdgen.robot.points_csv import read as read_points_csv
 
     mesh_dir = tmp_path / "meshes"
     mesh_dir.mkdir()

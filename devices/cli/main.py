@@ -175,6 +175,9 @@ def _ready_timeout(things: list[str]) -> float:
 @click.option("--tdgen-cache", type=click.Path(file_okay=False),
               help="Where the tdgen service caches generated robot TDs [default: $TWINMESH_CACHE/tdgen, "
                    "else ~/.cache/twinmesh/tdgen].")
+@click.option("--tdgen-live/--tdgen-from-scratch", default=True, show_default=True,
+              help="Follow a robot's changing surroundings (a box put down or taken away) by re-checking only "
+                   "the samples the change can touch, or generate every new scene from scratch.")
 @click.option("--fleet", "fleet", type=click.IntRange(min=1, max=100_000), metavar="N",
               help="The fleet scene's number of virtual devices [default: 100].")
 @click.option("--fleet-first", type=click.IntRange(min=1), default=1, show_default=True, metavar="K",
@@ -209,7 +212,7 @@ def _ready_timeout(things: list[str]) -> float:
 @click.pass_obj
 def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, http: str, no_http: bool,
        auth: str | None, record: str | None, view: str, no_view: bool, speed: str, samples: int | None,
-       tdgen_cache: str | None, fleet: int | None, fleet_first: int, join: str | None, direct: bool,
+       tdgen_cache: str | None, tdgen_live: bool, fleet: int | None, fleet_first: int, join: str | None, direct: bool,
        real: tuple[str, ...], real_auth: str | None, real_ca: str | None, real_insecure: bool,
        real_calibration: tuple[str, ...], virtual_things: tuple[str, ...], outlive_parent: bool) -> None:
     """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
@@ -279,7 +282,8 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
         raise click.ClickException(e.detail) from None
     router = ProcessSpec("router", entries.router, {"listen": listen})
     recorder = [ProcessSpec("recorder", entries.recorder, {"path": record})] if record else []
-    tdgen = ProcessSpec("tdgen", entries.tdgen, {"cache_dir": str(tdgen_cache or default_cache_dir())})
+    tdgen = ProcessSpec("tdgen", entries.tdgen, {"cache_dir": str(tdgen_cache or default_cache_dir()),
+                                                      "live": tdgen_live})
     http_adapter = [] if address is None else [ProcessSpec("adapter", entries.adapter, {"address": address, "auth": auth,
                                                                                  "view": view_url})]
     # the router alone listens; every other process connects to it

@@ -24,12 +24,12 @@ caller). `plan_move` answers exactly like a move without moving.
 
 The scene can change under the robot (`set_scene`, e.g. a box put on the table): the collision
 check uses the new scene at once, `version` is bumped and scene listeners are told (the Thing
-binding asks the tdgen service for a new workspace); until that arrives, the hull and collision
-probability of the previous workspace stay in use.
+binding asks the tdgen service for a new workspace, which follows a box put down or taken away
+within a tenth of a second). Cartesian requests wait for it (`RESCENE_WAIT` at most, then the
+previous workspace's hull and collision probability serve).
 """
 from __future__ import annotations
 
-import io
 import math
 import threading
 import time
@@ -47,6 +47,7 @@ from devices.sim.world import PEAK_SPEED, PathMotion, Snapshot, World
 from mesh.messages.scene import Pose, TwinDescription
 from mesh.wot.invocation import ActionCancelled
 from mesh.wot.problem import BadInput, Problem, Refused, Unavailable
+from tdgen.robot import points_csv
 from tdgen.robot.calibration import Calibration
 from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.fast_collision import FastCollision
@@ -66,6 +67,7 @@ POSE_SOLUTIONS = 4  # pose IK solutions looked for (the first from the current c
 POSE_RESTARTS = 60  # random restarts per pose IK run
 TRACE_STEPS = 8    # end-effector points per path segment in a move's answer (`path.tip`)
 WORKSPACE_WAIT = 120.0  # s a robot Thing's Cartesian request waits for a workspace being generated
+RESCENE_WAIT = 10.0     # s it waits, after a scene change, for the new scene's workspace (else the old one serves)
 
 
 class MoveRefused(Refused):
@@ -118,11 +120,7 @@ def placed(scene: Surroundings | None, base: Base) -> Surroundings:
 
 def workspace_from_csv(data: bytes) -> Workspace:
     """The check's workspace from the bytes of a points.csv (`x,y,z,collision,...`)."""
-    header = data.split(b"\n", 1)[0].decode().strip().split(",")
-    if header[:4] != ["x", "y", "z", "collision"]:
-        raise ValueError(f"not a points CSV (header starts {header[:4]})")
-    table = np.loadtxt(io.BytesIO(data), delimiter=",", skiprows=1, usecols=(0, 1, 2, 3), ndmin=2)
-    return Workspace(table[:, :3], table[:, 3].astype(bool))
+    return Workspace(*points_csv.read_bytes(data))
 
 
 class TdFrame:
@@ -203,7 +201,8 @@ class RobotTwin:
         self.workspace_hash: str | None = None
         self.workspace_error: str | None = None  # why the workspace could not be generated, if it could not
         self.workspace_wait = workspace_wait     # s a Cartesian request waits for a workspace being generated
-        self._workspace_settled = threading.Event()  # set once the workspace is known or has failed
+        self.workspace_version = -1              # the scene version the workspace was generated for
+        self._workspace_changed = threading.Condition()  # a workspace (or its failure) arrived
         self._scene = placed(scene, base)
         self._workspace: Workspace | None = None
         self._checker: PathChecker | None = None  # the live scene's collision world, for checks and paths
@@ -294,23 +293,38 @@ class RobotTwin:
     def workspace(self) -> Workspace | None:
         return self._workspace
 
-    def set_workspace(self, workspace: Workspace | None, hash: str | None = None) -> None:
-        """The sampled points (TD frame) Cartesian targets are checked against; None: not known yet."""
-        self._workspace, self.workspace_hash = workspace, hash
-        if workspace is not None:
-            self.workspace_error = None
-            self._workspace_settled.set()
+    def set_workspace(self, workspace: Workspace | None, hash: str | None = None, version: int | None = None) -> None:
+        """The sampled points (TD frame) Cartesian targets are checked against, generated for scene
+        `version` (default: the scene now); None: not known yet."""
+        with self._workspace_changed:
+            self._workspace, self.workspace_hash = workspace, hash
+            self.workspace_version = self.version if version is None else version
+            if workspace is not None:
+                self.workspace_error = None
+            self._workspace_changed.notify_all()
 
     def set_workspace_failed(self, error: str) -> None:
-        """The workspace could not be generated: Cartesian requests stop waiting and answer 503 with `error`."""
-        self.workspace_error = error
-        self._workspace_settled.set()
+        """The workspace could not be generated: Cartesian requests stop waiting and answer 503 with `error`
+        (or, with the workspace of an earlier scene at hand, are checked against that one)."""
+        with self._workspace_changed:
+            self.workspace_error = error
+            self._workspace_changed.notify_all()
 
     def await_workspace(self) -> None:
-        """Wait (up to `workspace_wait` s) while the workspace is still being generated; a client that
-        asks right after the robot joined then gets its answer, not a 503 to retry."""
-        if self._workspace is None and not self.workspace_error and self.workspace_wait > 0:
-            self._workspace_settled.wait(self.workspace_wait)
+        """Wait while the workspace is still being generated (up to `workspace_wait` s): a client that asks
+        right after the robot joined gets its answer, not a 503 to retry. After a scene change, wait for
+        the workspace of the new scene (up to RESCENE_WAIT s; a live update brings it in a tenth of a
+        second): a target asked for right after a box was put down is checked against the box."""
+        if self.workspace_wait <= 0:
+            return
+        with self._workspace_changed:
+            if self._workspace is None:
+                self._workspace_changed.wait_for(lambda: self._workspace is not None or bool(self.workspace_error),
+                                                 self.workspace_wait)
+            elif self.workspace_version < self.version:
+                self._workspace_changed.wait_for(
+                    lambda: self.workspace_version >= self.version or bool(self.workspace_error),
+                    min(RESCENE_WAIT, self.workspace_wait))
 
     def set_scene(self, scene: Surroundings | Mapping[str, Any]) -> int:
         """New surroundings (the robot keeps its base): bump `version`, tell the listeners. Returns it."""
@@ -496,13 +510,14 @@ class RobotTwin:
         try:
             return self._plan_to(target, where, info, started)
         except MoveRefused as refused:
-            if outside is None:
+            if outside is None:  # the workspace's figures in every Cartesian answer, refusals included
+                refused.extra = {**info, **(refused.extra or {})}
                 raise
             # the hull is the sampled workspace: outside it, the exact search above still decides, and
             # when it refuses, being outside the workspace is the better explanation
             raise MoveRefused(f"{where} is {outside} ({refused.detail.removeprefix(where + ': ')})",
                               reason="outside-workspace",
-                              extra={**(refused.extra or {}), "margin_mm": info["margin_mm"],
+                              extra={**info, **(refused.extra or {}), "margin_mm": info["margin_mm"],
                                      "search": refused.reason}) from None
 
     def _plan_to(self, target: np.ndarray, where: str, info: dict[str, Any], started: float) -> MovePlan:

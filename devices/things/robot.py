@@ -42,15 +42,18 @@ from mesh.fabric.state_publisher import StatePublisher
 from mesh.messages.scene import DEFAULT_SAMPLES, TWIN_CHANGED, TWIN_FILE, TwinDescription
 from mesh.wot.problem import BadInput, Problem
 from mesh.wot.td import ThingDescription, decode_td
+from tdgen.robot import points_csv
 from tdgen.td import ARTEFACTS, URDF_TYPE, policy, robot_td, slug
 
 if TYPE_CHECKING:  # pybullet loads with devices.sim.robot: `twinmesh --help` need not wait for it
     from devices.sim.robot import RobotTwin
     from tdgen.robot.surroundings import RobotPlacement
+    from tdgen.robot.workspace_check import Workspace
 
 log = logging.getLogger(__name__)
 
 TDGEN = "tdgen"               # the service's Thing name (tdgen.service.THING)
+FLAGS = "flags"               # its `<robot>.flags` file (tdgen.service.FLAGS)
 STATE_RATE = 20.0             # joint-state publications per wall second while moving, at most
 CARTESIAN = ("getCartesianposition", "moveToCartesianPosition")
 
@@ -102,6 +105,7 @@ class RobotThing:
         self._urdf = urdf or urdf_reference(path)
         self._urdf_sha = hashlib.sha256(self._urdf_bytes).hexdigest()
         self._artefacts: dict[str, bytes] = {}
+        self._flags: points_csv.Flags | None = None  # where the served points.csv keeps its collision flags
         self.client = MeshClient(session, settings)
         self.thing = t = ExposedThing(session, provisional_td(twin), self.name, self.keys)
         t.on_read("getJointposition", twin.joint_position)
@@ -211,20 +215,45 @@ class RobotThing:
         if hash == self.twin.workspace_hash and self.thing.td.version == {"instance": str(version)}:
             return  # already serving it (the service restarted and announced it again)
         try:
-            files = {name: self.client.file(TDGEN, f"{self.name}.{name}").payload
-                     for name in ("td.json", *ARTEFACTS)}
-            from devices.sim.robot import workspace_from_csv
-
-            workspace = workspace_from_csv(files["points.csv"])
+            made = self._points_from_digest()
+            files = {name: made.data if made is not None and name == "points.csv"
+                     else self.client.file(TDGEN, f"{self.name}.{name}").payload for name in ("td.json", *ARTEFACTS)}
+            workspace, flags = self._workspace_of(files["points.csv"], made)
             td = generated_td(files["td.json"], self.twin, version)
         except (Problem, ValueError, msgspec.DecodeError, msgspec.ValidationError) as e:
             log.warning("%s: cannot use the generated artefacts (%s): %s", self.name, hash, e)
             return
         self._artefacts = {name: files[name] for name in ARTEFACTS}
-        self.twin.set_workspace(workspace, hash)
+        self._flags = flags
+        self.twin.set_workspace(workspace, hash, version)
         self.thing.update_td(td)
         log.info("%s: TD generated (hash %s, version %d, %d points)", self.name, hash, version,
                  len(workspace.positions))
+
+    def _points_from_digest(self) -> points_csv.Flags | None:
+        """The new points.csv made from the one served now and the service's digest of the new one (its
+        collision flags and sha256): the same samples after a scene change, without fetching 7.5 MB."""
+        if self._flags is None:
+            return None
+        try:
+            digest = self.client.file(TDGEN, f"{self.name}.{FLAGS}").payload
+        except Problem:
+            return None
+        return self._flags.from_digest(digest)
+
+    def _workspace_of(self, points: bytes, made: points_csv.Flags | None) -> tuple[Workspace, points_csv.Flags | None]:
+        """The check's workspace from a points.csv, and where its flags are. The same samples with other
+        flags (`made` from a digest, after a scene change) keep the points and their k-d tree."""
+        from devices.sim.robot import workspace_from_csv
+
+        now = self.twin.workspace
+        if made is not None and now is not None:
+            return now.with_collision(made.collision), made
+        workspace = workspace_from_csv(points)
+        try:
+            return workspace, points_csv.Flags(points)
+        except ValueError:  # a points file written elsewhere, in another layout: read, never re-flagged
+            return workspace, None
 
     def _scene_changed(self, version: int) -> None:
         self.thing.emit_event(TWIN_CHANGED, {"robot": self.name, "version": version})

@@ -28,6 +28,7 @@ class RobotStatus(msgspec.Struct, omit_defaults=True):
     cached: bool | None = None
     error: str | None = None
     progress: float | None = None  # 0..1 of the workspace sampling, while generating
+    live: bool | None = None       # ready by a live update of the previous scene's samples (tdgen.live)
 
 
 class ActionCall(msgspec.Struct, omit_defaults=True):

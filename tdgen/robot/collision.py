@@ -16,7 +16,7 @@ import numpy as np
 
 from tdgen.robot.errors import RobotError
 from tdgen.robot.model import Robot
-from tdgen.robot.surroundings import Surroundings, build_into
+from tdgen.robot.surroundings import Body, Surroundings, build_into
 
 CONTACT_TOLERANCE = 1e-4  # m: contacts shallower than this are touching, not colliding
 
@@ -24,19 +24,23 @@ CONTACT_TOLERANCE = 1e-4  # m: contacts shallower than this are touching, not co
 class CollisionWorld:
     """One pybullet DIRECT client with the scene and the robot: answers "does q collide?"."""
 
-    def __init__(self, robot: Robot, scene: Surroundings):
+    def __init__(self, robot: Robot, scene: Surroundings, part: bool = False):
+        """`part`: `scene` holds only some bodies of the robot's scene (a live update's added or removed
+        ones) and only contacts with them count: the robot's self-collision is not tested, and an allowed
+        link/body pair may name a body that is not here."""
         import pybullet as pb
 
         self._pb = pb
         self.robot = robot
-        self.scene = scene
+        self.scene, self.part = scene, part
         self.client = pb.connect(pb.DIRECT)
         try:
             ids = build_into(scene, self.client)
-            self._scene_names = {i: b.name or f"body {k}" for k, (i, b) in enumerate(zip(ids, scene.bodies))}
+            self._ids = ids
+            self._scene_names = _names(ids, scene)
             self.body = robot.load_into(self.client, scene.robot.position, math.radians(scene.robot.yaw),
                                         base_orientation=scene.robot.quaternion(),
-                                        flags=pb.URDF_USE_SELF_COLLISION)
+                                        flags=0 if part else pb.URDF_USE_SELF_COLLISION)
         except Exception:
             pb.disconnect(self.client)
             raise
@@ -63,13 +67,33 @@ class CollisionWorld:
         self._excluded = self._adjacent_pairs(group)
         self._excluded |= self._touching_by_design()
         self._excluded |= self._allowed_pairs()
-        self._allowed_bodies = self._allowed_body_pairs(ids)
+        self._allowed_bodies = self._allowed_body_pairs(ids, part)
         for a, b in self._excluded:  # contacts `_colliding` ignores need not be computed (a Panda checks ~1/3 faster)
             if a < b:
                 pb.setCollisionFilterPair(self.body, self.body, a, b, 0, physicsClientId=self.client)
 
     def close(self) -> None:
         self._pb.disconnect(self.client)
+
+    def set_bodies(self, bodies: list[Body]) -> None:
+        """Make the scene's bodies `bodies`, the robot where it stands: bodies gone are removed, new ones
+        built, the rest kept (a live update changes a box without loading the robot and the room again)."""
+        import msgspec
+
+        held: dict[bytes, list[int]] = {}
+        for body, i in zip(self.scene.bodies, self._ids):
+            held.setdefault(msgspec.json.encode(body), []).append(i)
+        ids = []
+        for body in bodies:
+            kept = held.get(msgspec.json.encode(body))
+            ids.append(kept.pop() if kept else build_into(msgspec.structs.replace(self.scene, bodies=[body]),
+                                                          self.client)[0])
+        for gone in held.values():
+            for i in gone:
+                self._pb.removeBody(i, physicsClientId=self.client)
+        self.scene = msgspec.structs.replace(self.scene, bodies=list(bodies))
+        self._ids, self._scene_names = ids, _names(ids, self.scene)
+        self._allowed_bodies = self._allowed_body_pairs(ids, self.part)
 
     def _values(self, q: np.ndarray) -> np.ndarray:
         """(N, n) main-joint values -> (N, m) values of every driven pybullet joint."""
@@ -118,7 +142,7 @@ class CollisionWorld:
         return {p for a, b in self.robot.allowed_collisions if a in index and b in index
                 for p in ((index[a], index[b]), (index[b], index[a]))}
 
-    def _allowed_body_pairs(self, ids: list[int]) -> set[tuple[int, int]]:
+    def _allowed_body_pairs(self, ids: list[int], part: bool = False) -> set[tuple[int, int]]:
         """(robot link, scene body) pairs whose contact does not count (`--allow-collision LINK/BODY`: a
         link that touches the surface the robot is mounted on by design)."""
         count = self._pb.getNumJoints(self.body, physicsClientId=self.client)
@@ -130,6 +154,8 @@ class CollisionWorld:
                 continue
             link, body = (a, b) if a in links else (b, a)
             if body not in bodies:
+                if part:
+                    continue
                 raise ValueError(f"no link or scene body named {body!r} for the allowed collision {a}/{b} (scene "
                                  f"bodies: {', '.join(sorted(bodies)) or 'none'})")
             out.add((links[link], bodies[body]))
@@ -276,3 +302,8 @@ class CollisionWorld:
             self._set(row)
             out[k] = self._colliding()
         return out
+
+
+def _names(ids: list[int], scene: Surroundings) -> dict[int, str]:
+    """pybullet body id -> the scene body's name (`body k` for the k-th if it has none), in the scene's order."""
+    return {i: b.name or f"body {k}" for k, (i, b) in enumerate(zip(ids, scene.bodies))}

@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import functools
 import threading
+import weakref
 
 import numpy as np
 
 from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.link_frames import LinkFrames
+from tdgen.robot.model import Robot
 from tdgen.robot.spheres import PAD, SURE_DEPTH, Convex, cover, link_elements, outer_planes, scene_elements, within
 
 FREE, COLLIDES, UNSURE = 0, 1, 2
@@ -43,6 +45,26 @@ def _planes(rows: list[np.ndarray]) -> np.ndarray:
         r = r if len(r) else np.array([[0.0, 0.0, 0.0, -1.0]])
         out[k, :len(r)], out[k, len(r):] = r, r[0]
     return out
+
+
+_ROBOT_PARTS: dict[int, tuple[weakref.ref[Robot], dict[tuple[bytes, bool], tuple]]] = {}  # by id(robot)
+
+
+def _robot_part(world: CollisionWorld) -> tuple:
+    """`SphereModel.robot_part`, made once per robot, placement and kind of world: a live scene change
+    builds a model of the same robot again (its spheres take 15 ms to fit)."""
+    import msgspec
+
+    key = (msgspec.json.encode(world.scene.robot), world.part)
+    held = _ROBOT_PARTS.get(id(world.robot))
+    if held is None or held[0]() is not world.robot:  # a robot (Robot is a dataclass, not hashable) seen first
+        for gone in [k for k, (ref, _) in _ROBOT_PARTS.items() if ref() is None]:
+            del _ROBOT_PARTS[gone]
+        held = _ROBOT_PARTS[id(world.robot)] = (weakref.ref(world.robot), {})
+    per_robot = held[1]
+    if key not in per_robot:
+        per_robot[key] = SphereModel.robot_part(world)
+    return per_robot[key]
 
 
 GROUP_CELL = 0.3  # m: scene elements are grouped by the cell of this size their centre is in (the broad phase)
@@ -72,19 +94,33 @@ class SphereModel:
     `CollisionWorld`; `verdicts(q)` classifies (N, n) configurations as FREE, COLLIDES or UNSURE."""
 
     def __init__(self, world: CollisionWorld):
+        pb, client = world._pb, world.client
+        self.frames, self.fallback, robot_tables, slot_of = _robot_part(world)
+        links = list(slot_of)
+        items = [(b, e) for b in world._scene_names for e in scene_elements(pb, client, b)]
+        element_body = np.array([b for b, _ in items], dtype=int)
+        allowed = np.ones((len(links), len(items)), dtype=bool)
+        for link, other in world._allowed_bodies:
+            allowed[slot_of[link], element_body == other] = False
+        self._tables = {**robot_tables, **self._scene_tables([e for _, e in items]), "touches": allowed}
+
+    @classmethod
+    def robot_part(cls, world: CollisionWorld) -> tuple[LinkFrames, set[int], dict[str, np.ndarray], dict[int, int]]:
+        """What does not depend on the scene: the link frames, the links left to one sphere, the links'
+        tables (spheres, hulls, self pairs, which links meet the scene), pybullet link -> slot."""
         pb, client, body, robot = world._pb, world.client, world.body, world.robot
         count = pb.getNumJoints(body, physicsClientId=client)
         links = list(range(-1, count))
         names = world.link_names()
         placement = world.scene.robot
-        self.frames = LinkFrames(robot, placement.position, placement.quaternion(), names)
+        frames = LinkFrames(robot, placement.position, placement.quaternion(), names)
         elements = link_elements(robot.load_path or robot.urdf_path, robot.packages)
         shapes = {i: elements.get(name) for i, name in zip(links, names)}
-        self.fallback = self._check_against_pybullet(world, self.frames, links, shapes)
-        radii = world._geometry_radii(count) if self.fallback else {}
+        fallback = cls._check_against_pybullet(world, frames, links, shapes)
+        radii = world._geometry_radii(count) if fallback else {}
         outer, inner, hulls = [], [], []
         for slot, i in enumerate(links):
-            if i in self.fallback:  # one sphere around all pybullet has for the link, nothing sure inside
+            if i in fallback:  # one sphere around all pybullet has for the link, nothing sure inside
                 outer.append((np.zeros((1, 3)), np.array([radii[i] + PAD])))
                 inner.append((np.zeros((0, 3)), np.zeros(0)))
                 continue
@@ -96,17 +132,11 @@ class SphereModel:
         has = [len(r) > 0 for _, r in outer]
         slot_of = {i: k for k, i in enumerate(links)}
         pairs = [(slot_of[a], slot_of[b]) for a in links for b in links
-                 if a < b and (a, b) not in world._excluded and has[slot_of[a]] and has[slot_of[b]]]
-        items = [(b, e) for b in world._scene_names for e in scene_elements(pb, client, b)]
-        element_body = np.array([b for b, _ in items], dtype=int)
-        allowed = np.ones((len(links), len(items)), dtype=bool)
-        for link, other in world._allowed_bodies:
-            allowed[slot_of[link], element_body == other] = False
-        self._tables = {**self.frames.tables(), **self._sphere_tables(outer, inner),
-                        **self._hull_tables(hulls, len(links)),
-                        "pairs": np.array(pairs, dtype=np.int64).reshape(-1, 2),
-                        "scene_links": np.array([i not in world._fixed_to_base and has[k] for k, i in enumerate(links)]),
-                        **self._scene_tables([e for _, e in items]), "touches": allowed}
+                 if not world.part and a < b and (a, b) not in world._excluded and has[slot_of[a]] and has[slot_of[b]]]
+        tables = {**frames.tables(), **cls._sphere_tables(outer, inner), **cls._hull_tables(hulls, len(links)),
+                  "pairs": np.array(pairs, dtype=np.int64).reshape(-1, 2),
+                  "scene_links": np.array([i not in world._fixed_to_base and has[k] for k, i in enumerate(links)])}
+        return frames, fallback, tables, slot_of
 
     @staticmethod
     def _sphere_tables(outer, inner) -> dict[str, np.ndarray]:
@@ -154,7 +184,8 @@ class SphereModel:
         outside = [outer_planes(e) for e in elements]
         centres = np.array([(e.points.min(axis=0) + e.points.max(axis=0)) / 2 for e in elements]).reshape(-1, 3)
         radii = np.array([np.max(np.linalg.norm(e.points - c, axis=1)) for e, c in zip(elements, centres)])
-        return _groups(centres, radii) | {
+        corners, counts = _stacked([e.points for e in elements], (3,))
+        return _groups(centres, radii) | {"el_points": corners, "el_np": counts,
             "el_outer": _planes(outside), "el_outer_n": np.array([len(p) for p in outside], dtype=np.int64),
             "el_inner": _planes([e.planes for e in elements]),
             "el_inner_n": np.array([len(e.planes) for e in elements], dtype=np.int64), "el_c": centres, "el_r": radii}
@@ -241,7 +272,8 @@ class FastCollision:
 
     def __init__(self, world: CollisionWorld, warm: bool = False):
         """`warm`: load (on a machine's first use: compile, 10-20 s) the one-state code now, not in a
-        planner's first check, whose time budget it would eat."""
+        planner's first check, whose time budget it would eat. A world that holds `part` of a scene
+        has no self pairs (`CollisionWorld`)."""
         self.world = world
         self.spheres = SphereModel(world)
         self.unsure = 0  # configurations left to the exact test so far (a figure for the benchmark)

@@ -135,22 +135,34 @@ def _sphere_in(centres, i, radius, planes, n_planes, depth):
     return True
 
 
-@njit(cache=True, fastmath=FAST)
-def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
-         outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
-         hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
-         hull_in, hull_in_n, hull_in_planes, hull_in_nj,
-         pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-         group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-         pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero):
+@njit(cache=True, inline="always", fastmath=FAST)
+def _spheres(rot, pos, k, outer_c, outer_n, inner_c, inner_n, ow, iw, moved):
+    """Link k's spheres in the world, once per configuration and only for links a broad phase let through."""
+    if moved[k]:
+        return
+    moved[k] = True
+    for i in range(outer_n[k]):
+        _move(rot, pos, k, outer_c[k, i], ow[k], i)
+    for i in range(inner_n[k]):
+        _move(rot, pos, k, inner_c[k, i], iw[k], i)
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved):
+    """One configuration's verdict; `tables` in the order of TABLES (a tuple: a call of fifty arguments
+    compiles to a call with *args, which numba cannot inline)."""
+    (parent, origin_r, origin_p, kind, axis, base_r, base_p,
+     outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
+     hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
+     hull_in, hull_in_n, hull_in_planes, hull_in_nj,
+     pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
+     group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+     el_points, el_np) = tables
     count = parent.shape[0]
     _frames(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, rot, pos, tmp)
     for k in range(count):
         _move(rot, pos, k, bound_c[k], bw, k)
-        for i in range(outer_n[k]):
-            _move(rot, pos, k, outer_c[k, i], ow[k], i)
-        for i in range(inner_n[k]):
-            _move(rot, pos, k, inner_c[k, i], iw[k], i)
+        moved[k] = False
     maybe = False
     # the robot with the scene first: most colliding samples touch a body (a table), found out here
     for k in range(count):
@@ -165,6 +177,7 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                     continue
                 if _dist2(bw, k, el_c, e) >= (bound_r[k] + el_r[e]) ** 2:
                     continue
+                _spheres(rot, pos, k, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
                 if el_inner_n[e] > 0:
                     for i in range(inner_n[k]):
                         if inner_r[k, i] <= sure_depth:
@@ -201,6 +214,12 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                     if coarse[h] and _beyond(el_outer[e], el_outer_n[e], eye, zero, fine_points[h], fine_np[h], rot[k],
                                              pos[k], pad):
                         continue
+                    # the other way round: the element's corners beyond a face of the link's hull
+                    if _beyond(hull_planes[h], hull_nj[h], rot[k], pos[k], el_points[e], el_np[e], eye, zero, pad):
+                        continue
+                    if coarse[h] and _beyond(fine_planes[h], fine_nj[h], rot[k], pos[k], el_points[e], el_np[e], eye,
+                                             zero, pad):
+                        continue
                     maybe = True
                     break
     # the robot with itself
@@ -208,6 +227,8 @@ def _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
         a, b = pairs[p, 0], pairs[p, 1]
         if _dist2(bw, a, bw, b) >= (bound_r[a] + bound_r[b]) ** 2:
             continue
+        _spheres(rot, pos, a, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
+        _spheres(rot, pos, b, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
         for i in range(inner_n[a]):
             for j in range(inner_n[b]):
                 reach = inner_r[a, i] + inner_r[b, j] - sure_depth
@@ -265,19 +286,21 @@ def verdict_one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
                 hull_in, hull_in_n, hull_in_planes, hull_in_nj,
                 pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
                 group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+                el_points, el_np,
                 pad, sure_depth):
     """One configuration's verdict without the threads' start-up: a planner's state check."""
     count = parent.shape[0]
-    return _one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
-                outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
-                hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
-                hull_in, hull_in_n, hull_in_planes, hull_in_nj,
-                pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-                group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-                pad, sure_depth,
+    tables = (parent, origin_r, origin_p, kind, axis, base_r, base_p,
+              outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
+              hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
+              hull_in, hull_in_n, hull_in_planes, hull_in_nj,
+              pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
+              group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+              el_points, el_np)
+    return _one(values, tables, pad, sure_depth,
                 np.empty((count, 3, 3)), np.empty((count, 3)), np.empty((3, 3)),
                 np.empty((count, outer_c.shape[1], 3)), np.empty((count, inner_c.shape[1], 3)),
-                np.empty((count, 3)), np.empty((2, 3)), np.eye(3), np.zeros(3))
+                np.empty((count, 3)), np.empty((2, 3)), np.eye(3), np.zeros(3), np.zeros(count, dtype=np.bool_))
 
 
 @njit(cache=True, parallel=True, fastmath=FAST)
@@ -297,6 +320,42 @@ def tips(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, tip):
     return out
 
 
+@njit(cache=True, fastmath=FAST)
+def _block(lo, hi, values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
+             outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
+             hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
+             hull_in, hull_in_n, hull_in_planes, hull_in_nj,
+             pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
+             group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+             el_points, el_np,
+             pad, sure_depth, tip, tips_out, out):
+    """Configurations lo..hi on one core: one call per block, the model inlined (a call per configuration
+    passed fifty arrays, counting references to each: a third of the time of a configuration far from
+    everything)."""
+    count = parent.shape[0]
+    rot = np.empty((count, 3, 3))
+    pos = np.empty((count, 3))
+    tmp = np.empty((3, 3))
+    ow = np.empty((count, outer_c.shape[1], 3))
+    iw = np.empty((count, inner_c.shape[1], 3))
+    bw = np.empty((count, 3))
+    hw = np.empty((2, 3))
+    eye = np.eye(3)
+    zero = np.zeros(3)
+    moved = np.zeros(count, dtype=np.bool_)
+    for s in range(lo, hi):
+        out[s] = _one(values[s], (parent, origin_r, origin_p, kind, axis, base_r, base_p,
+             outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
+             hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
+             hull_in, hull_in_n, hull_in_planes, hull_in_nj,
+             pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
+             group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+             el_points, el_np),
+                      pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
+        if tip >= 0:  # the tip's position from the same frames: the sampled points
+            tips_out[s] = pos[tip]
+
+
 @njit(cache=True, parallel=True, fastmath=FAST)
 def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
              outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
@@ -304,32 +363,21 @@ def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
              hull_in, hull_in_n, hull_in_planes, hull_in_nj,
              pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
              group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+             el_points, el_np,
              pad, sure_depth, tip, tips_out):
     n = values.shape[0]
-    count = parent.shape[0]
     out = np.zeros(n, dtype=np.int8)
     per_block = (n + BLOCKS - 1) // BLOCKS
     for block in prange(BLOCKS):
-        rot = np.empty((count, 3, 3))
-        pos = np.empty((count, 3))
-        tmp = np.empty((3, 3))
-        ow = np.empty((count, outer_c.shape[1], 3))
-        iw = np.empty((count, inner_c.shape[1], 3))
-        bw = np.empty((count, 3))
-        hw = np.empty((2, 3))
-        eye = np.eye(3)
-        zero = np.zeros(3)
-        for s in range(block * per_block, min(n, (block + 1) * per_block)):
-            out[s] = _one(values[s], parent, origin_r, origin_p, kind, axis, base_r, base_p,
-                          outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
-                          hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
-                          hull_in, hull_in_n, hull_in_planes, hull_in_nj,
-                          pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-                          group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-                          pad, sure_depth, rot, pos, tmp, ow, iw, bw,
-                          hw, eye, zero)
-            if tip >= 0:  # the tip's position from the same frames: the sampled points
-                tips_out[s] = pos[tip]
+        _block(block * per_block, min(n, (block + 1) * per_block), values,
+               parent, origin_r, origin_p, kind, axis, base_r, base_p,
+             outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
+             hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
+             hull_in, hull_in_n, hull_in_planes, hull_in_nj,
+             pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
+             group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
+             el_points, el_np,
+             pad, sure_depth, tip, tips_out, out)
     return out
 
 
@@ -395,6 +443,7 @@ def verdict_packed(q, passive, main_map, passive_map, offsets, floats, ints, met
                 _f2(floats, meta, 36), _f1(floats, meta, 37), _i1(ints, meta, 38),
                 _i1(ints, meta, 39), _f3(floats, meta, 40), _i1(ints, meta, 41),
                 _f3(floats, meta, 42), _i1(ints, meta, 43), _i1(ints, meta, 44),
+                _f3(floats, meta, 45), _i1(ints, meta, 46),
                 pad, sure_depth)
 
 
@@ -406,7 +455,7 @@ PACKING = [
     'link_nh:i1', 'hull_in:f3', 'hull_in_n:i1', 'hull_in_planes:f3', 'hull_in_nj:i1', 'pairs:i2',
     'scene_links:i1', 'el_outer:f3', 'el_outer_n:i1', 'el_inner:f3', 'el_inner_n:i1', 'el_c:f2', 'el_r:f1',
     'touches:i2', 'group_c:f2', 'group_r:f1', 'group_start:i1', 'group_members:i1', 'fine_points:f3', 'fine_np:i1',
-    'fine_planes:f3', 'fine_nj:i1', 'coarse:i1',
+    'fine_planes:f3', 'fine_nj:i1', 'coarse:i1', 'el_points:f3', 'el_np:i1',
 ]
 TABLES = tuple(entry.split(":")[0] for entry in PACKING)  # the same names: the parallel loop's arguments
 

@@ -126,12 +126,3 @@ def write_stl(solid: Solid, path: Path) -> None:
     header = b"twinmesh workspace (binary STL)".ljust(80, b" ")
     path.write_bytes(header + np.uint32(len(facets)).tobytes() + facets.tobytes())
 
-
-def read_points_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(positions (N, 3) mm, collision (N,) bool) from a points.csv."""
-    with open(path) as f:
-        header = f.readline().strip().split(",")
-    if header[:4] != ["x", "y", "z", "collision"]:
-        raise ValueError(f"{path}: not a points CSV (header starts {header[:4]})")
-    table = np.loadtxt(path, delimiter=",", skiprows=1, usecols=(0, 1, 2, 3), ndmin=2)
-    return table[:, :3], table[:, 3].astype(bool)

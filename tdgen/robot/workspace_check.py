@@ -19,7 +19,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tdgen.robot.workspace import convex_hull, qhull, read_points_csv
+from tdgen.robot import points_csv
+from tdgen.robot.workspace import convex_hull, qhull
 
 if TYPE_CHECKING:
     import trimesh
@@ -44,13 +45,19 @@ class CheckResult:
 class Workspace:
     """The hull of the collision-free points and a k-d tree of all points, built once, asked often."""
 
-    def __init__(self, positions: np.ndarray, collision: np.ndarray):
+    def __init__(self, positions: np.ndarray, collision: np.ndarray, tree: cKDTree | None = None):
         self.positions = np.asarray(positions, dtype=float)
         self.collision = np.asarray(collision, dtype=bool)
         free = self.positions[~self.collision]
         self._hull = qhull(free)
         self._mesh: "trimesh.Trimesh | None" = None
-        self._tree = cKDTree(self.positions)
+        self._tree = cKDTree(self.positions) if tree is None else tree
+
+    def with_collision(self, collision: np.ndarray) -> "Workspace":
+        """The same points with other collision flags (their scene changed): a new hull, the same k-d tree."""
+        if len(collision) != len(self.positions):
+            raise ValueError(f"{len(collision)} flags for {len(self.positions)} points")
+        return Workspace(self.positions, collision, self._tree)
 
     @classmethod
     def load(cls, td_dir: str | Path) -> "Workspace":
@@ -58,7 +65,7 @@ class Workspace:
         path = Path(td_dir) / "points.csv"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no points.csv (is {td_dir} a directory written by `twinmesh tdgen`?)")
-        return cls(*read_points_csv(path))
+        return cls(*points_csv.read(path))
 
     def plane_distances(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) -> (N, facets): signed distances to the facet planes (> 0: outside that facet)."""
