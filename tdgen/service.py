@@ -337,8 +337,9 @@ class TdgenService:
         return Following(twin, held.robot, held.calibration, samples)
 
     def _follow(self, twin: TwinDescription, key: str, following: Following | None) -> None:
-        """Keep the robot's samples for its next scene change (read back from its cache entry after a
-        generation or a cache hit); the least recently changed robots beyond LIVE_ROBOTS are let go."""
+        """Keep the robot's samples for its next scene change: after a cache hit, those held moved to the
+        new scene (a box taken away: nothing to check), else read back from the cache entry; the least
+        recently changed robots beyond LIVE_ROBOTS are let go."""
         from tdgen.live import LiveSamples
 
         if not self.live or twin.samples > LIVE_SAMPLES:
@@ -347,6 +348,8 @@ class TdgenService:
             held = self._following.get(twin.robot)
             if held is not None and held.twin == twin:
                 return
+            following = self._live_update(twin)
+        if following is None:
             try:
                 robot, calibration = load_robot(twin)
                 samples = LiveSamples.from_file(robot, scene_of(twin), twin.samples, twin.seed,
@@ -355,6 +358,14 @@ class TdgenService:
                 log.exception("%s: cannot keep its samples for live updates", twin.robot)
                 return
             following = Following(twin, robot, calibration, samples)
+        else:
+            with self._lock:  # the robot asks for it next (`_digest`): from memory, not from the file
+                known = self._digests.get(twin.robot, ("", b""))[0] == key
+            if not known:
+                digest = following.samples.flags.digest()
+                with self._lock:
+                    if self._ready.get(twin.robot) == key:
+                        self._digests[twin.robot] = (key, digest)
         before = self._following.get(twin.robot)
         if before is not None and before.samples.worlds is not following.samples.worlds:
             before.samples.close()

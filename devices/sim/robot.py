@@ -55,7 +55,7 @@ from tdgen.robot.ik import solve, solve_many
 from tdgen.robot.kinematics import ForwardKinematics
 from tdgen.robot.model import Robot
 from tdgen.robot.pose_ik import rotation_of, solve_pose
-from tdgen.robot.surroundings import RobotPlacement, Surroundings, empty_scene
+from tdgen.robot.surroundings import Body, RobotPlacement, Surroundings, empty_scene
 from tdgen.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM, Workspace
 
 IK_SEEDS = 24       # IK runs per Cartesian target: from the current configuration and from random starts
@@ -206,6 +206,7 @@ class RobotTwin:
         self._scene = placed(scene, base)
         self._workspace: Workspace | None = None
         self._checker: PathChecker | None = None  # the live scene's collision world, for checks and paths
+        self._touch_world: CollisionWorld | None = None  # only bodies about to be added (`would_touch`)
         self._motion: PathMotion | None = None
         self.planning_budget = planning_budget
         self._move_lock = threading.RLock()   # one motion at a time (and its check)
@@ -252,6 +253,9 @@ class RobotTwin:
             if self._checker is not None:
                 self._checker.world.close()
                 self._checker = None
+            if self._touch_world is not None:
+                self._touch_world.close()
+                self._touch_world = None
 
     # --- listeners ------------------------------------------------------------------------------
     def on_state(self, listener: Callable[[], None]) -> None:
@@ -343,13 +347,15 @@ class RobotTwin:
             listener(version)
         return version
 
-    def collides_in(self, scene: Surroundings) -> bool:
-        """Whether the robot, where it stands now, would collide in `scene` (e.g. with a box about to be added)."""
-        world = CollisionWorld(self.robot, placed(scene, self.base))
-        try:
-            return bool(world.colliding(self.arm.q[None])[0])
-        finally:
-            world.close()
+    def would_touch(self, bodies: list[Body]) -> bool:
+        """Whether the robot, where it stands now, would touch any of these bodies if they were added to its
+        scene (a box about to be put down). A world of only them is kept for it: the robot is loaded once."""
+        with self._scene_lock:
+            if self._touch_world is None:
+                self._touch_world = CollisionWorld(self.robot, msgspec.structs.replace(self._scene, bodies=[]),
+                                                   part=True)
+            self._touch_world.set_bodies(list(bodies))
+            return bool(self._touch_world.colliding(self.arm.q[None])[0])
 
     def place_joints(self, joints: Mapping[str, float]) -> None:
         """Stand at these joint values (TD units) at once: the twin following its real arm, which is

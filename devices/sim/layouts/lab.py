@@ -208,9 +208,7 @@ class IotLab:
             if obstacle.name in self._obstacles:
                 raise Refused(f"there is already an obstacle named {obstacle.name!r}; remove it first",
                               reason="obstacle-exists")
-            scene = self.robot_scene()
-            scene.bodies.append(scene_body(obstacle))
-            if self.ur10.collides_in(scene):
+            if self.ur10.would_touch([scene_body(obstacle)]):
                 raise Refused(f"obstacle {obstacle.name!r} would hit the ur10 where it stands; move the robot "
                               "away first or put the box elsewhere", reason="obstacle-hits-robot")
             body = self.world.run(lambda: build(self.world.client, obstacle))
