@@ -229,13 +229,20 @@ def _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, ze
             continue
         _spheres(rot, pos, a, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
         _spheres(rot, pos, b, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
+        # a sphere of a that does not reach b's bounding sphere (deep enough) meets none of b's: skip its row
         for i in range(inner_n[a]):
+            reach = inner_r[a, i] + bound_r[b] - sure_depth
+            if reach <= 0 or _dist2(iw[a], i, bw, b) >= reach * reach:
+                continue
             for j in range(inner_n[b]):
                 reach = inner_r[a, i] + inner_r[b, j] - sure_depth
                 if reach > 0 and _dist2(iw[a], i, iw[b], j) < reach * reach:
                     return 1
         touch = False
         for i in range(outer_n[a]):
+            reach = outer_r[a, i] + bound_r[b]
+            if _dist2(ow[a], i, bw, b) >= reach * reach:
+                continue
             for j in range(outer_n[b]):
                 reach = outer_r[a, i] + outer_r[b, j]
                 if _dist2(ow[a], i, ow[b], j) < reach * reach:
