@@ -264,7 +264,7 @@ class SphereModel:
         """The tables in the order the parallel loop takes them (`sphere_kernel.TABLES`), then the margins."""
         from tdgen.robot import sphere_kernel
 
-        return (*(self._tables[name] for name in sphere_kernel.TABLES), PAD, SURE_DEPTH)
+        return tuple(self._tables[name] for name in sphere_kernel.TABLES), PAD, SURE_DEPTH
 
 
 class FastCollision:

@@ -286,28 +286,21 @@ def _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, ze
     return 2 if maybe else 0
 
 
+@njit(cache=True, inline="always", fastmath=FAST)
+def _scratch(tables):
+    """One core's working arrays for `_one`: link frames, spheres in the world, a few vectors."""
+    count, outer, inner = tables[0].shape[0], tables[7].shape[1], tables[10].shape[1]
+    return (np.empty((count, 3, 3)), np.empty((count, 3)), np.empty((3, 3)), np.empty((count, outer, 3)),
+            np.empty((count, inner, 3)), np.empty((count, 3)), np.empty((2, 3)), np.eye(3), np.zeros(3),
+            np.zeros(count, dtype=np.bool_))
+
+
 @njit(cache=True, fastmath=FAST)
-def verdict_one(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
-                outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
-                hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
-                hull_in, hull_in_n, hull_in_planes, hull_in_nj,
-                pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-                group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-                el_points, el_np,
-                pad, sure_depth):
-    """One configuration's verdict without the threads' start-up: a planner's state check."""
-    count = parent.shape[0]
-    tables = (parent, origin_r, origin_p, kind, axis, base_r, base_p,
-              outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
-              hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
-              hull_in, hull_in_n, hull_in_planes, hull_in_nj,
-              pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-              group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-              el_points, el_np)
-    return _one(values, tables, pad, sure_depth,
-                np.empty((count, 3, 3)), np.empty((count, 3)), np.empty((3, 3)),
-                np.empty((count, outer_c.shape[1], 3)), np.empty((count, inner_c.shape[1], 3)),
-                np.empty((count, 3)), np.empty((2, 3)), np.eye(3), np.zeros(3), np.zeros(count, dtype=np.bool_))
+def verdict_one(values, tables, pad, sure_depth):
+    """One configuration's verdict without the threads' start-up: a planner's state check. `tables`: the
+    model's tables in the order of TABLES."""
+    rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved = _scratch(tables)
+    return _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
 
 
 @njit(cache=True, parallel=True, fastmath=FAST)
@@ -328,63 +321,25 @@ def tips(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, tip):
 
 
 @njit(cache=True, fastmath=FAST)
-def _block(lo, hi, values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
-             outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
-             hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
-             hull_in, hull_in_n, hull_in_planes, hull_in_nj,
-             pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-             group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-             el_points, el_np,
-             pad, sure_depth, tip, tips_out, out):
+def _block(lo, hi, values, tables, pad, sure_depth, tip, tips_out, out):
     """Configurations lo..hi on one core: one call per block, the model inlined (a call per configuration
     passed fifty arrays, counting references to each: a third of the time of a configuration far from
     everything)."""
-    count = parent.shape[0]
-    rot = np.empty((count, 3, 3))
-    pos = np.empty((count, 3))
-    tmp = np.empty((3, 3))
-    ow = np.empty((count, outer_c.shape[1], 3))
-    iw = np.empty((count, inner_c.shape[1], 3))
-    bw = np.empty((count, 3))
-    hw = np.empty((2, 3))
-    eye = np.eye(3)
-    zero = np.zeros(3)
-    moved = np.zeros(count, dtype=np.bool_)
+    rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved = _scratch(tables)
     for s in range(lo, hi):
-        out[s] = _one(values[s], (parent, origin_r, origin_p, kind, axis, base_r, base_p,
-             outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
-             hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
-             hull_in, hull_in_n, hull_in_planes, hull_in_nj,
-             pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-             group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-             el_points, el_np),
-                      pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
+        out[s] = _one(values[s], tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
         if tip >= 0:  # the tip's position from the same frames: the sampled points
             tips_out[s] = pos[tip]
 
 
 @njit(cache=True, parallel=True, fastmath=FAST)
-def verdicts(values, parent, origin_r, origin_p, kind, axis, base_r, base_p,
-             outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
-             hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
-             hull_in, hull_in_n, hull_in_planes, hull_in_nj,
-             pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-             group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-             el_points, el_np,
-             pad, sure_depth, tip, tips_out):
+def verdicts(values, tables, pad, sure_depth, tip, tips_out):
+    """(N, m) joint values -> (N,) verdicts on all cores; with `tip` >= 0, that link's origins into tips_out."""
     n = values.shape[0]
     out = np.zeros(n, dtype=np.int8)
     per_block = (n + BLOCKS - 1) // BLOCKS
     for block in prange(BLOCKS):
-        _block(block * per_block, min(n, (block + 1) * per_block), values,
-               parent, origin_r, origin_p, kind, axis, base_r, base_p,
-             outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
-             hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
-             hull_in, hull_in_n, hull_in_planes, hull_in_nj,
-             pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-             group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-             el_points, el_np,
-             pad, sure_depth, tip, tips_out, out)
+        _block(block * per_block, min(n, (block + 1) * per_block), values, tables, pad, sure_depth, tip, tips_out, out)
     return out
 
 
@@ -434,24 +389,23 @@ def verdict_packed(q, passive, main_map, passive_map, offsets, floats, ints, met
             values[j] += q[i] * main_map[i, j]
         for i in range(passive.shape[0]):
             values[j] += passive[i] * passive_map[i, j]
-    return verdict_one(values,
-                _i1(ints, meta, 0), _f3(floats, meta, 1), _f2(floats, meta, 2),
-                _i1(ints, meta, 3), _f2(floats, meta, 4), _f2(floats, meta, 5),
-                _f1(floats, meta, 6), _f3(floats, meta, 7), _f2(floats, meta, 8),
-                _i1(ints, meta, 9), _f3(floats, meta, 10), _f2(floats, meta, 11),
-                _i1(ints, meta, 12), _f2(floats, meta, 13), _f1(floats, meta, 14),
-                _f3(floats, meta, 15), _i1(ints, meta, 16), _f3(floats, meta, 17),
-                _i1(ints, meta, 18), _f2(floats, meta, 19), _f1(floats, meta, 20),
-                _i2(ints, meta, 21), _i1(ints, meta, 22), _f3(floats, meta, 23),
-                _i1(ints, meta, 24), _f3(floats, meta, 25), _i1(ints, meta, 26),
-                _i2(ints, meta, 27), _i1(ints, meta, 28), _f3(floats, meta, 29),
-                _i1(ints, meta, 30), _f3(floats, meta, 31), _i1(ints, meta, 32),
-                _f2(floats, meta, 33), _f1(floats, meta, 34), _i2(ints, meta, 35),
-                _f2(floats, meta, 36), _f1(floats, meta, 37), _i1(ints, meta, 38),
-                _i1(ints, meta, 39), _f3(floats, meta, 40), _i1(ints, meta, 41),
-                _f3(floats, meta, 42), _i1(ints, meta, 43), _i1(ints, meta, 44),
-                _f3(floats, meta, 45), _i1(ints, meta, 46),
-                pad, sure_depth)
+    tables = (_i1(ints, meta, 0), _f3(floats, meta, 1), _f2(floats, meta, 2),
+              _i1(ints, meta, 3), _f2(floats, meta, 4), _f2(floats, meta, 5),
+              _f1(floats, meta, 6), _f3(floats, meta, 7), _f2(floats, meta, 8),
+              _i1(ints, meta, 9), _f3(floats, meta, 10), _f2(floats, meta, 11),
+              _i1(ints, meta, 12), _f2(floats, meta, 13), _f1(floats, meta, 14),
+              _f3(floats, meta, 15), _i1(ints, meta, 16), _f3(floats, meta, 17),
+              _i1(ints, meta, 18), _f2(floats, meta, 19), _f1(floats, meta, 20),
+              _i2(ints, meta, 21), _i1(ints, meta, 22), _f3(floats, meta, 23),
+              _i1(ints, meta, 24), _f3(floats, meta, 25), _i1(ints, meta, 26),
+              _i2(ints, meta, 27), _i1(ints, meta, 28), _f3(floats, meta, 29),
+              _i1(ints, meta, 30), _f3(floats, meta, 31), _i1(ints, meta, 32),
+              _f2(floats, meta, 33), _f1(floats, meta, 34), _i2(ints, meta, 35),
+              _f2(floats, meta, 36), _f1(floats, meta, 37), _i1(ints, meta, 38),
+              _i1(ints, meta, 39), _f3(floats, meta, 40), _i1(ints, meta, 41),
+              _f3(floats, meta, 42), _i1(ints, meta, 43), _i1(ints, meta, 44),
+              _f3(floats, meta, 45), _i1(ints, meta, 46))
+    return verdict_one(values, tables, pad, sure_depth)
 
 
 # name:kind of verdict_one's tables, in order (f float, i int; the number: dimensions)
