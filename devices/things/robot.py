@@ -12,7 +12,8 @@ plus the event `twinChanged {robot, version}` and the files `twin.json` (its
 3. the service sees it join, reads `files/twin.json`, generates (or finds in its cache) and emits
    `generated {robot, hash, version}`;
 4. the robot fetches `<robot>.td.json`, `.points.csv`, `.workspace.stl`, `.scene.json` from the
-   service, keeps the points for its checks, serves the three artefacts as its own files and
+   service (after a scene change `<robot>.flags` instead of the points, which it makes from those it
+   holds), keeps the points for its checks, serves the three artefacts as its own files and
    replaces its TD with the service's (`update_td`: observers of `<prefix>/<robot>/td` see it),
    which links all five files with relative hrefs `files/...` (relations: mesh.messages.relations).
 
