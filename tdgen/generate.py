@@ -268,7 +268,10 @@ def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, worl
         if world is None:
             asked.close()
     at_rest = robot_at_rest(robot, scene) if at_rest is None else at_rest
-    top = ", ".join(f"{pair} ({n * 100 // max(len(colliding), 1)} %)" for pair, n in counts.most_common(5))
+    # ties by name: the text depends on the counts only, not on the order pybullet lists contacts in (a
+    # world a live update keeps holds its bodies in another order than a new one)
+    most = sorted(counts.items(), key=lambda item: (-item[1], item[0]))[:5]
+    top = ", ".join(f"{pair} ({n * 100 // max(len(colliding), 1)} %)" for pair, n in most)
     out = [f"{share:.0%} of the samples collide (the workspace is made of the other {1 - share:.0%}); the pairs "
            f"that collide most: {top or 'none named'}"]
     if at_rest:
