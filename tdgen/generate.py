@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Literal
+from typing import Callable, Literal
 from urllib.parse import urlsplit
 
 import msgspec
@@ -30,9 +30,6 @@ from tdgen.robot.surroundings import RobotPlacement, Surroundings, default_scene
 from tdgen.robot.workspace import WorkspaceError, alpha_shape, bounds, convex_hull, write_stl
 from tdgen.sampling import Samples, sample_workspace
 from tdgen.td import policy, robot_td, served_td, slug, thing_model
-
-if TYPE_CHECKING:
-    from tdgen.robot.collision import CollisionWorld
 
 Frame = Literal["twin", "real"]
 
@@ -247,12 +244,12 @@ def _hangs(robot: Robot) -> bool:
     return bool(ForwardKinematics(robot).positions(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))[2] < 0)
 
 
-def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, world: CollisionWorld | None = None,
-                       at_rest: list[str] | None = None) -> list[str]:
+def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, at_rest: list[str] | None = None,
+                       pairs: list[list[str]] | None = None) -> list[str]:
     """When most samples collide, say so and name the link pairs that collide most, and whether the
     robot collides already at rest (joints at 0, within their limits): then the URDF's collision
-    meshes overlap by design, the usual cause. `world`: a collision world of `scene` to ask (else one
-    is made); `at_rest`: `robot_at_rest(robot)`, if known."""
+    meshes overlap by design, the usual cause. `at_rest`: `robot_at_rest(robot)`, if known; `pairs`:
+    what collides in each of the first PAIR_SAMPLES colliding samples, if known (a live update's)."""
     share = float(samples.collision.mean()) if len(samples.collision) else 0.0
     if share <= MOSTLY_COLLIDING:
         return []
@@ -260,13 +257,14 @@ def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, worl
 
     from tdgen.robot.collision import CollisionWorld
 
-    asked = world or CollisionWorld(robot, scene)
-    try:
-        colliding = samples.q[samples.collision][:PAIR_SAMPLES]
-        counts = Counter(pair for q in colliding for pair in asked.what_collides(q))
-    finally:
-        if world is None:
-            asked.close()
+    colliding = samples.q[samples.collision][:PAIR_SAMPLES]
+    if pairs is None:
+        world = CollisionWorld(robot, scene)
+        try:
+            pairs = [world.what_collides(q) for q in colliding]
+        finally:
+            world.close()
+    counts = Counter(pair for found in pairs for pair in found)
     at_rest = robot_at_rest(robot, scene) if at_rest is None else at_rest
     # ties by name: the text depends on the counts only, not on the order pybullet lists contacts in (a
     # world a live update keeps holds its bodies in another order than a new one)

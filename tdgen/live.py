@@ -52,12 +52,15 @@ def _take(bodies: list[Body], wanted: Counter[bytes]) -> list[Body]:
 class Worlds:
     """The collision worlds a robot's live updates ask, kept between updates (loading the robot and the
     room costs some 15 ms each time): one with only the body being checked, without self-collision
-    (`touching`), and one of the whole scene now (which pairs collide, for the TD's warnings)."""
+    (`touching`), one of the whole scene now and one of the base (which pairs collide, for the TD's
+    warnings)."""
 
     def __init__(self, robot: Robot, base: Surroundings):
         self.robot, self.base = robot, base
         self._part: CollisionWorld | None = None
         self._whole: CollisionWorld | None = None
+        self._base: CollisionWorld | None = None
+        self._base_pairs: dict[int, list[str]] = {}
         self._at_rest: list[str] | None = None
 
     def part(self, bodies: list[Body]) -> CollisionWorld:
@@ -73,6 +76,14 @@ class Worlds:
             self._whole.set_bodies(scene.bodies)
         return self._whole
 
+    def base_pairs(self, row: int, q: np.ndarray) -> list[str]:
+        """What collides in sample `row` (configuration q) in the base scene, asked once."""
+        if row not in self._base_pairs:
+            if self._base is None:
+                self._base = CollisionWorld(self.robot, self.base)
+            self._base_pairs[row] = self._base.what_collides(q)
+        return self._base_pairs[row]
+
     def at_rest(self) -> list[str]:
         from tdgen.generate import robot_at_rest
 
@@ -81,10 +92,10 @@ class Worlds:
         return self._at_rest
 
     def close(self) -> None:
-        for world in (self._part, self._whole):
+        for world in (self._part, self._whole, self._base):
             if world is not None:
                 world.close()
-        self._part = self._whole = None
+        self._part = self._whole = self._base = None
 
 
 def touching(world: CollisionWorld, q: np.ndarray, model: str = "fast") -> np.ndarray:
@@ -158,13 +169,39 @@ class LiveSamples:
         return live, checked
 
     def warnings(self) -> list[str]:
-        """`tdgen.generate.collision_warnings` of the samples in their scene, asked of the kept worlds."""
-        from tdgen.generate import MOSTLY_COLLIDING, collision_warnings
+        """`tdgen.generate.collision_warnings` of the samples in their scene. What collides in a sample is
+        asked of the kept whole-scene world only where the added bodies can change it (a sample that
+        collides because of them, or that collided in the base and touches them); elsewhere it is what
+        collided in the base (kept from the first update on)."""
+        from tdgen.generate import MOSTLY_COLLIDING, PAIR_SAMPLES, collision_warnings
 
-        if float(self.samples.collision.mean()) <= MOSTLY_COLLIDING:  # no warning: no world to update
-            return collision_warnings(self.robot, self.scene, self.samples)
-        return collision_warnings(self.robot, self.scene, self.samples, self.worlds.whole(self.scene),
-                                  self.worlds.at_rest())
+        if float(self.samples.collision.mean()) <= MOSTLY_COLLIDING:
+            return []
+        q = self.base_samples.q
+        rows = np.flatnonzero(self.samples.collision)[:PAIR_SAMPLES]
+        before = self.base_samples.collision[rows]
+        kept, stale = rows[before], rows[~before]
+        added = changed_bodies(self.base, self.scene)[1]
+        if added and len(kept):
+            hit = touching(self.worlds.part(added), q[kept], self.model)
+            kept, stale = kept[~hit], np.concatenate([stale, kept[hit]])
+        found = {int(i): self.worlds.base_pairs(int(i), q[i]) for i in kept}
+        if len(stale):
+            whole = self.worlds.whole(self.scene)
+            found |= {int(i): whole.what_collides(q[i]) for i in stale}
+        return collision_warnings(self.robot, self.scene, self.samples, self.worlds.at_rest(),
+                                  [found[int(i)] for i in rows])
+
+    def prepare(self) -> None:
+        """Load the kept worlds and ask what collides in the base's first samples now, between updates,
+        so that the first update does not wait for them (some 50 ms)."""
+        from tdgen.generate import PAIR_SAMPLES
+
+        for row in np.flatnonzero(self.base_samples.collision)[:PAIR_SAMPLES]:
+            self.worlds.base_pairs(int(row), self.base_samples.q[row])
+        self.worlds.at_rest()
+        self.worlds.part([])
+        self.worlds.whole(self.scene)
 
     @property
     def points(self) -> bytes:

@@ -148,6 +148,7 @@ class TdgenService:
         self._robots: dict[str, RobotStatus] = {}
         self._ready: dict[str, str] = {}  # robot -> hash of its latest artefacts (served while others generate)
         self._digests: dict[str, tuple[str, bytes]] = {}  # robot -> (hash, digest of its points.csv)
+        self._twin_files: dict[str, str] = {}  # robot -> the name of its twin file (from its TD's link)
         self._pending: dict[str, TwinDescription] = {}
         self._lock = threading.Lock()
         self._fetching = ThreadPoolExecutor(4, thread_name_prefix="tdgen-fetch")
@@ -232,14 +233,24 @@ class TdgenService:
             self._fetching.submit(self._consider, parsed.thing)
 
     def _consider(self, thing: str) -> None:
-        """Fetch a Thing's TD; if it links a twin, fetch that and ask for a generation."""
+        """Fetch a Thing's TD; if it links a twin, fetch that and ask for a generation. For a robot whose
+        twin was read before (its `twinChanged`), the twin file at once: one round trip less."""
         try:
-            td = self._fetch_td(thing)
-            link = next((link for link in td.links if link.rel == TWIN_REL), None)
-            if link is None:
-                return
-            name = link.href.rsplit("/", 1)[-1]
-            twin = msgspec.json.decode(self.client.file(thing, name).payload, type=TwinDescription)
+            name = self._twin_files.get(thing)
+            twin = None
+            if name is not None:
+                try:
+                    twin = msgspec.json.decode(self.client.file(thing, name).payload, type=TwinDescription)
+                except Problem:  # restarted under another name for its twin: ask its TD
+                    twin = None
+            if twin is None:
+                td = self._fetch_td(thing)
+                link = next((link for link in td.links if link.rel == TWIN_REL), None)
+                if link is None:
+                    return
+                name = link.href.rsplit("/", 1)[-1]
+                twin = msgspec.json.decode(self.client.file(thing, name).payload, type=TwinDescription)
+                self._twin_files[thing] = name
         except (Problem, msgspec.DecodeError, msgspec.ValidationError) as e:
             log.warning("%s: cannot read its twin: %s", thing, e)
             return
@@ -367,8 +378,10 @@ class TdgenService:
                     if self._ready.get(twin.robot) == key:
                         self._digests[twin.robot] = (key, digest)
         before = self._following.get(twin.robot)
-        if before is not None and before.samples.worlds is not following.samples.worlds:
-            before.samples.close()
+        if before is None or before.samples.worlds is not following.samples.worlds:
+            if before is not None:
+                before.samples.close()
+            following.samples.prepare()  # new worlds: loaded now, not in the next change's update
         self._following[twin.robot] = following
         self._following.move_to_end(twin.robot)
         while len(self._following) > LIVE_ROBOTS:

@@ -124,6 +124,7 @@ class RobotThing:
                                                     "getCartesianposition": twin.cartesian_position()}, rate)
         twin.on_state(self.publisher.changed)
         self._worker = ThreadPoolExecutor(1, thread_name_prefix=f"{self.name}-td")
+        self._fetching = ThreadPoolExecutor(4, thread_name_prefix=f"{self.name}-fetch")  # a TD's files at once
         self._declared: list[Any] = []
         twin.on_scene_changed(self._scene_changed)
 
@@ -149,6 +150,7 @@ class RobotThing:
                 pass
         self.publisher.close()
         self._worker.shutdown(wait=False, cancel_futures=True)
+        self._fetching.shutdown(wait=False, cancel_futures=True)
         self.thing.destroy()
 
     # --- handlers ----------------------------------------------------------------------------------
@@ -216,9 +218,11 @@ class RobotThing:
         if hash == self.twin.workspace_hash and self.thing.td.version == {"instance": str(version)}:
             return  # already serving it (the service restarted and announced it again)
         try:
-            made = self._points_from_digest()
-            files = {name: made.data if made is not None and name == "points.csv"
-                     else self.client.file(TDGEN, f"{self.name}.{name}").payload for name in ("td.json", *ARTEFACTS)}
+            wanted = ["td.json", *(a for a in ARTEFACTS if a != "points.csv")]
+            digest = self._fetching.submit(self._digest) if self._flags is not None else None
+            files = dict(zip(wanted, self._fetching.map(self._service_file, wanted)))  # at once: ~10 ms sooner
+            made = self._points_from_digest(digest.result() if digest is not None else None)
+            files["points.csv"] = made.data if made is not None else self._service_file("points.csv")
             workspace, flags = self._workspace_of(files["points.csv"], made)
             td = generated_td(files["td.json"], self.twin, version)
         except (Problem, ValueError, msgspec.DecodeError, msgspec.ValidationError) as e:
@@ -231,14 +235,20 @@ class RobotThing:
         log.info("%s: TD generated (hash %s, version %d, %d points)", self.name, hash, version,
                  len(workspace.positions))
 
-    def _points_from_digest(self) -> points_csv.Flags | None:
+    def _service_file(self, name: str) -> bytes:
+        return self.client.file(TDGEN, f"{self.name}.{name}").payload
+
+    def _digest(self) -> bytes | None:
+        """The service's `<robot>.flags`; None if it serves none (an older service)."""
+        try:
+            return self._service_file(FLAGS)
+        except Problem:
+            return None
+
+    def _points_from_digest(self, digest: bytes | None) -> points_csv.Flags | None:
         """The new points.csv made from the one served now and the service's digest of the new one (its
         collision flags and sha256): the same samples after a scene change, without fetching 7.5 MB."""
-        if self._flags is None:
-            return None
-        try:
-            digest = self.client.file(TDGEN, f"{self.name}.{FLAGS}").payload
-        except Problem:
+        if self._flags is None or digest is None:
             return None
         return self._flags.from_digest(digest)
 
