@@ -69,6 +69,44 @@ def test_the_lab_arms_get_the_exact_tests_answers_and_most_need_no_exact_test(na
     assert np.mean(verdict == UNSURE) < 0.4, "the spheres decide most samples themselves"
 
 
+@pytest.mark.parametrize("name", ["ur10 table-and-wall", "uarm iot-platform", "panda table-and-wall"])
+def test_a_state_found_free_with_its_links_grown_vouches_for_the_stretch_around_it(name):
+    """A path's first pass (`devices.planning.paths`) judges states 40 mm apart with every link and pair of
+    links grown by how far it moves in half that stretch; a state found free then stands for every state
+    around it, which the exact test never sees. Not one of those may collide; without the growth some do."""
+    robot, scene = _lab_arms()[name] if name in _lab_arms() else (Robot.load("franka_panda/panda.urdf"),
+                                                                   load_scene("table-and-wall"))
+    world = CollisionWorld(robot, scene)
+    try:
+        fast = FastCollision(world)
+        radii = fast.grow_radii()
+        q = random_configurations(robot, 600, 12)
+        free = q[~world.colliding(q)]
+        rng = np.random.default_rng(5)
+        vouched, colliding, colliding_ungrown = 0, 0, 0
+        for _ in range(30):
+            a, b = free[rng.choice(len(free), 2, replace=False)]
+            per = np.abs(b - a) @ radii
+            m = max(1, int(np.ceil(per.max() / 0.04)))
+            t = np.arange(m + 1) / m
+            states = a + (b - a) * t[:, None]
+            for grow, counts in ((per / (2 * m), True), (None, False)):
+                for k in np.flatnonzero(fast.spheres.verdicts_here(states, grow) == FREE):
+                    around = np.clip(t[k] + np.linspace(-0.5, 0.5, 11) / m, 0.0, 1.0)
+                    hit = bool(world.colliding(a + (b - a) * around[:, None]).any())
+                    if counts:
+                        vouched, colliding = vouched + 1, colliding + hit
+                    else:
+                        colliding_ungrown += hit
+        print(f"\n{name}: {vouched} states vouched for their stretch; {colliding_ungrown} stretches collide "
+              "around states free but not grown")
+        assert vouched >= 100
+        assert colliding == 0, f"{colliding} stretches around states found free with their links grown collide"
+        assert colliding_ungrown > 0, "the segments pass close enough to things for the growth to matter"
+    finally:
+        world.close()
+
+
 def test_link_frames_are_pybullets_own():
     robot = Robot.load(c.UARM_URDF, ee=c.UARM_EE, passive_joints=c.UARM_PASSIVE_JOINTS, passive=c.uarm_passive)
     scene = load_scene("iot-platform", "uarm")

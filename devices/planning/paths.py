@@ -28,6 +28,7 @@ PLANNING_BUDGET_S = 1.0  # default time a plan may take
 _COARSE = 20.0           # the planner's own motion checks are this much coarser than STEP_MM at first
 _RANGE = 1.0             # RRTConnect's longest extension (rad or m): short ones waste fewer checks
 BATCH = 4                # segments of this many states or more are judged at once by the fast model
+GROWN_MM = 40.0          # the fast model's first pass over a segment: states this far apart, the robot grown by half
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,7 @@ class PathChecker:
         self.world = world
         self.step_m = step_mm / 1000.0
         self.radii = world.sweep_radii()
+        self.grow_radii = world.grow_radii() if isinstance(world, FastCollision) else None
         self.checks = 0
 
     def free(self, q: np.ndarray) -> bool:
@@ -71,14 +73,32 @@ class PathChecker:
         return max(1, math.ceil(sweep / (step_m or self.step_m)))
 
     def segment_free(self, a: np.ndarray, b: np.ndarray) -> bool:
-        """Whether every state of a->b at the resolution is free (a itself is not checked)."""
+        """Whether every state of a->b at the resolution is free (a itself is not checked at it).
+
+        With the fast model, a pass of states `GROWN_MM` apart first, each judged with the robot grown
+        by half that: one found free vouches for every state around it (no point of the robot is further
+        from where it is there), and only the states no one vouches for are checked at the resolution."""
         a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
         n = self.subdivisions(a, b)
         if isinstance(self.world, FastCollision) and n >= BATCH:
-            order = np.array(_bisection_order(n), dtype=float)
+            order = _bisection_order(n)
+            assert self.grow_radii is not None
+            per_link = np.abs(b - a) @ self.grow_radii  # how far each link (and pair) moves along the segment
+            m = math.ceil(float(per_link.max()) / (GROWN_MM / 1000.0))
+            if m * 2 <= n:
+                coarse = np.append(_bisection_order(m), 0)
+                self.checks += len(coarse)
+                covered = self.world.covering(a + (b - a) * (coarse[:, None] / m), per_link / (2 * m))
+                if covered is None:
+                    return False
+                vouched = np.zeros(m + 1, dtype=bool)
+                vouched[coarse] = covered
+                # the nearest coarse state of fine state j: |j/n - k/m| <= 1/(2m), where no link has moved further
+                # than its grow, per_link/(2m)
+                order = order[~vouched[np.rint(order * m / n).astype(int)]]
             self.checks += len(order)
-            return not self.world.first_collision(a + (b - a) * (order[:, None] / n))
-        for k in _bisection_order(n):
+            return not self.world.first_collision(a + (b - a) * (order[:, None].astype(float) / n))
+        for k in _bisection_order(n).tolist():
             if not self.free(a + (b - a) * (k / n)):
                 return False
         return True
@@ -87,21 +107,14 @@ class PathChecker:
         return all(self.segment_free(p, q) for p, q in zip(waypoints[:-1], waypoints[1:]))
 
 
-def _bisection_order(n: int) -> list[int]:
-    """1..n, the end first, then midpoints of ever finer halves: collisions show up early."""
-    order, seen = [n], {0, n}
-    parts = 2
-    while len(order) < n:
-        for j in range(1, parts, 2):
-            k = round(j * n / parts)
-            if k not in seen:
-                seen.add(k)
-                order.append(k)
-        parts *= 2
-        if parts > 2 * n:
-            order += [k for k in range(1, n) if k not in seen]
-            break
-    return order
+def _bisection_order(n: int) -> np.ndarray:
+    """1..n, the end first, then midpoints of ever finer halves: collisions show up early. (Each k is ranked
+    by the lowest set bit of its nearest place on a grid of 2^L <= n steps: halves, then quarters, ...)"""
+    k = np.arange(1, n)
+    grid = 1 << (n.bit_length() - 1)
+    place = np.maximum((2 * k * grid + n) // (2 * n), 1).astype(np.int64)
+    lowest_bit = np.bitwise_and(place, np.negative(place))
+    return np.concatenate([[n], k[np.argsort(np.negative(lowest_bit), kind="stable")]]).astype(np.int64)
 
 
 def find_path(checker: PathChecker, start: np.ndarray, goals: Sequence[np.ndarray], lows: np.ndarray,

@@ -11,6 +11,7 @@ What counts as a collision (penetration deeper than `CONTACT_TOLERANCE`):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -194,32 +195,66 @@ class CollisionWorld:
         drives them, passive joints (a linkage's map) the largest slope of the map. Along a
         straight joint-space segment dq, no point moves more than sum(|dq_i| * radius_i).
         """
+        return self.link_sweep_radii()[0].max(axis=1)
+
+    def link_sweep_radii(self, pairs: Sequence[tuple[int, int]] = ()) -> tuple[np.ndarray, np.ndarray]:
+        """`sweep_radii` per link and per pair of links, (n main joints, pybullet links -1..count-1) and
+        (n main joints, len(pairs)): column k + 1 bounds how far link k's points move per unit of each
+        joint (links near the base move less); a pair's column, how far the two move relative to each
+        other, which only the joints between them change (a wrist's two ends, not the shoulder)."""
+        reach, up = self._reach()
+        count = len(up)
+
+        def chain(k: int) -> set[int]:  # the joints from the base to link k
+            out = set()
+            while k >= 0:
+                out.add(k)
+                k = up[k]
+            return out
+
+        relative = np.zeros((count, len(pairs)))
+        for p, (a, b) in enumerate(pairs):
+            to_a, to_b = chain(a), chain(b)
+            for x in to_a - to_b:
+                relative[x, p] += reach[x, a + 1]
+            for x in to_b - to_a:
+                relative[x, p] += reach[x, b + 1]
+        return self._per_main_joint(reach), self._per_main_joint(relative)
+
+    def _reach(self) -> tuple[np.ndarray, list[int]]:
+        """reach[j, k + 1]: how far link k's points can be from the origin of joint j (its child link's frame,
+        for the links after it); and each link's parent."""
         pb, body, client = self._pb, self.body, self.client
         count = pb.getNumJoints(body, physicsClientId=client)
-        infos = [pb.getJointInfo(body, i, physicsClientId=client) for i in range(count)]
-        base = np.array(pb.getBasePositionAndOrientation(body, physicsClientId=client)[0])
-        origin = {-1: base}
+        up = [pb.getJointInfo(body, i, physicsClientId=client)[16] for i in range(count)]
+        origin = {-1: np.array(pb.getBasePositionAndOrientation(body, physicsClientId=client)[0])}
         for i in range(count):
             origin[i] = np.array(pb.getLinkState(body, i, computeForwardKinematics=True,
                                                  physicsClientId=client)[4])
-        children: dict[int, list[int]] = {}
-        for i, info in enumerate(infos):
-            children.setdefault(info[16], []).append(i)
         radius = self._geometry_radii(count)
-        reach: dict[int, float] = {}
-        for k in [*range(count - 1, -1, -1), -1]:  # children have higher indices than their parents
-            below = [float(np.linalg.norm(origin[c] - origin[k])) + reach[c] for c in children.get(k, [])]
-            reach[k] = max([radius[k], *below])
-        by_name = {info[1].decode(): i for i, info in enumerate(infos)}
-        per_joint = {name: (1.0 if infos[i][2] == pb.JOINT_PRISMATIC else reach[i]) for name, i in by_name.items()}
-        n = len(self.robot.joints)
-        radii = np.zeros(n)
+        reach = np.zeros((count, count + 1))
+        for k in range(count):
+            x, d = k, radius[k]
+            while x >= 0:
+                reach[x, k + 1] = d
+                d += float(np.linalg.norm(origin[x] - origin[up[x]]))
+                x = up[x]
+        return reach, up
+
+    def _per_main_joint(self, per_joint: np.ndarray) -> np.ndarray:
+        """Rows per pybullet joint -> rows per main joint: mimic joints add their multiplier's share, passive
+        joints the largest slope of their map; a prismatic joint moves its links by |dq|."""
+        pb, body, client = self._pb, self.body, self.client
+        infos = [pb.getJointInfo(body, i, physicsClientId=client) for i in range(len(per_joint))]
+        rows = {info[1].decode(): (np.where(per_joint[i] > 0, 1.0, 0.0) if info[2] == pb.JOINT_PRISMATIC
+                                   else per_joint[i]) for i, info in enumerate(infos)}
+        radii = np.zeros((len(self.robot.joints), per_joint.shape[1]))
         slopes = self._passive_slopes()
         for name, drive in self.robot.drives().items():
             if drive.kind == "main":
-                radii[drive.index] += abs(drive.multiplier) * per_joint[name]
+                radii[drive.index] += abs(drive.multiplier) * rows[name]
             elif drive.kind == "passive":
-                radii += abs(drive.multiplier) * slopes[drive.index] * per_joint[name]
+                radii += abs(drive.multiplier) * slopes[drive.index][:, None] * rows[name][None, :]
         return radii
 
     def _geometry_radii(self, count: int, poses: int = 24) -> dict[int, float]:

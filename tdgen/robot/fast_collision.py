@@ -96,6 +96,8 @@ class SphereModel:
     def __init__(self, world: CollisionWorld):
         pb, client = world._pb, world.client
         self.frames, self.fallback, robot_tables, slot_of = _robot_part(world)
+        self.slot_of = slot_of
+        self._still = np.zeros(len(slot_of) + len(robot_tables["pairs"]))  # no growth (`verdicts_here`)
         links = list(slot_of)
         items = [(b, e) for b in world._scene_names for e in scene_elements(pb, client, b)]
         element_body = np.array([b for b, _ in items], dtype=int)
@@ -234,14 +236,20 @@ class SphereModel:
                 out[start:start + CHUNK] = sphere_kernel.verdicts(values, *self._args, slot, where)  # type: ignore[call-arg]
         return out, tips
 
-    def verdicts_here(self, q: np.ndarray) -> np.ndarray:
-        """`verdicts` on this thread, without the cores' start-up: for a few dozen states (a segment)."""
+    def verdicts_here(self, q: np.ndarray, grow: np.ndarray | None = None) -> np.ndarray:
+        """`verdicts` on this thread, without the cores' start-up: for a few dozen states (a segment).
+
+        `grow` (m, per link slot, then per self pair: `FastCollision.grow_radii`): FREE then also holds for
+        every configuration whose links lie within that of their place here, and pairs of links within that
+        of where they stand to each other (the stretch of a segment around it); COLLIDES and UNSURE speak of
+        the state."""
         from tdgen.robot import sphere_kernel
 
         q = np.atleast_2d(np.asarray(q, dtype=float))
         robot = self.frames.robot
         passive = np.atleast_2d(robot.passive(q)) if robot.passive is not None else np.zeros((len(q), 0))
-        return sphere_kernel.verdicts_packed(q, passive, *self._packed, PAD, SURE_DEPTH)  # type: ignore[call-arg]
+        grow = self._still if grow is None else np.asarray(grow, dtype=float)
+        return sphere_kernel.verdicts_packed(q, passive, *self._packed, PAD, SURE_DEPTH, grow)  # type: ignore[call-arg]
 
     @functools.cached_property
     def _packed(self) -> tuple:
@@ -257,7 +265,8 @@ class SphereModel:
         q = np.asarray(q, dtype=float)
         robot = self.frames.robot
         passive = np.atleast_2d(robot.passive(q[None]))[0] if robot.passive is not None else NO_PASSIVE
-        return int(sphere_kernel.verdict_packed(q, passive, *self._packed, PAD, SURE_DEPTH))  # type: ignore[call-arg]
+        return int(sphere_kernel.verdict_packed(q, passive, *self._packed, PAD, SURE_DEPTH,  # type: ignore[call-arg]
+                                                self._still))
 
     @functools.cached_property
     def _args(self) -> tuple:
@@ -318,11 +327,39 @@ class FastCollision:
                 return True
         return False
 
+    def covering(self, states: np.ndarray, grow: np.ndarray) -> np.ndarray | None:
+        """Which states (K, n) the spheres find free with each link and pair grown by its `grow` (m, in the
+        order of `grow_radii`): each such one vouches for every configuration whose links and pairs lie within
+        that of their place in it; None as soon as one surely collides. Judged in growing slices in the order
+        given, on this thread."""
+        covered = np.zeros(len(states), dtype=bool)
+        start, size = 0, 4
+        while start < len(states):
+            verdict = self.spheres.verdicts_here(states[start:start + size], grow)
+            if np.any(verdict == COLLIDES):
+                return None
+            covered[start:start + size] = verdict == FREE
+            start, size = start + size, size * 4
+        return covered
+
     def what_collides(self, q: np.ndarray) -> list[str]:
         return self.world.what_collides(q)
 
     def sweep_radii(self) -> np.ndarray:
         return self.world.sweep_radii()
+
+    def grow_radii(self) -> np.ndarray:
+        """Per main joint, how far (m per unit) what each of the model's grown shapes stands for moves:
+        (n, link slots + self pairs), each link in the world, each pair of links relative to each other
+        (`CollisionWorld.link_sweep_radii`); the order of `covering`'s `grow`."""
+        slot_of = self.spheres.slot_of
+        link_of = {slot: link for link, slot in slot_of.items()}
+        pairs = [(link_of[int(a)], link_of[int(b)]) for a, b in self.spheres._tables["pairs"]]
+        per_link, per_pair = self.world.link_sweep_radii(pairs)
+        out = np.zeros((len(per_link), len(slot_of)))
+        for link, slot in slot_of.items():
+            out[:, slot] = per_link[:, link + 1]
+        return np.hstack([out, per_pair])
 
     def close(self) -> None:
         self.world.close()

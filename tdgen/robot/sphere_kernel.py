@@ -148,9 +148,15 @@ def _spheres(rot, pos, k, outer_c, outer_n, inner_c, inner_n, ow, iw, moved):
 
 
 @njit(cache=True, inline="always", fastmath=FAST)
-def _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved):
+def _one(values, tables, pad, sure_depth, grow, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved):
     """One configuration's verdict; `tables` in the order of TABLES (a tuple: a call of fifty arguments
-    compiles to a call with *args, which numba cannot inline)."""
+    compiles to a call with *args, which numba cannot inline).
+
+    `grow` (m, per link slot, then per self pair): each link's shapes taken that much larger in every proof
+    that it is apart from the scene, each pair's in every proof that its two links are apart; none in the
+    proofs that things collide. FREE then holds for every configuration whose links' points lie within their
+    `grow` of these, and pairs' within theirs of each other (a stretch of a segment around a checked state);
+    COLLIDES still speaks of this one."""
     (parent, origin_r, origin_p, kind, axis, base_r, base_p,
      outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
      hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
@@ -169,15 +175,30 @@ def _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, ze
         if not scene_links[k]:
             continue
         for g in range(group_c.shape[0]):
-            if _dist2(bw, k, group_c, g) >= (bound_r[k] + group_r[g]) ** 2:
+            if _dist2(bw, k, group_c, g) >= (bound_r[k] + grow[k] + group_r[g]) ** 2:
                 continue
             for m in range(group_start[g], group_start[g + 1]):
                 e = group_members[m]
                 if not touches[k, e]:
                     continue
-                if _dist2(bw, k, el_c, e) >= (bound_r[k] + el_r[e]) ** 2:
+                if _dist2(bw, k, el_c, e) >= (bound_r[k] + grow[k] + el_r[e]) ** 2:
                     continue
                 _spheres(rot, pos, k, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
+                # outer spheres (around the link) that reach no face of the element: the two are apart, and the
+                # tests of a sure collision below (shapes inside the link) need not run
+                touch = False
+                for i in range(outer_n[k]):
+                    deepest = -np.inf
+                    for j in range(el_outer_n[e]):
+                        f = ow[k, i, 0] * el_outer[e, j, 0] + ow[k, i, 1] * el_outer[e, j, 1] \
+                            + ow[k, i, 2] * el_outer[e, j, 2] - el_outer[e, j, 3]
+                        if f > deepest:
+                            deepest = f
+                    if deepest < outer_r[k, i] + grow[k]:
+                        touch = True
+                        break
+                if not touch:
+                    continue
                 if el_inner_n[e] > 0:
                     for i in range(inner_n[k]):
                         if inner_r[k, i] <= sure_depth:
@@ -191,44 +212,47 @@ def _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, ze
                             return 1
                 if maybe:
                     continue
-                touch = False
-                for i in range(outer_n[k]):
-                    deepest = -np.inf
-                    for j in range(el_outer_n[e]):
-                        f = ow[k, i, 0] * el_outer[e, j, 0] + ow[k, i, 1] * el_outer[e, j, 1] \
-                            + ow[k, i, 2] * el_outer[e, j, 2] - el_outer[e, j, 3]
-                        if f > deepest:
-                            deepest = f
-                    if deepest < outer_r[k, i]:
-                        touch = True
-                        break
-                if not touch:
-                    continue
                 if link_nh[k] == 0:
                     maybe = True
                     continue
                 for x in range(link_nh[k]):
                     h = link_hulls[k, x]
-                    if _beyond(el_outer[e], el_outer_n[e], eye, zero, hull_points[h], hull_np[h], rot[k], pos[k], pad):
+                    if _beyond(el_outer[e], el_outer_n[e], eye, zero, hull_points[h], hull_np[h], rot[k], pos[k],
+                               pad + grow[k]):
                         continue
                     if coarse[h] and _beyond(el_outer[e], el_outer_n[e], eye, zero, fine_points[h], fine_np[h], rot[k],
-                                             pos[k], pad):
+                                             pos[k], pad + grow[k]):
                         continue
                     # the other way round: the element's corners beyond a face of the link's hull
-                    if _beyond(hull_planes[h], hull_nj[h], rot[k], pos[k], el_points[e], el_np[e], eye, zero, pad):
+                    if _beyond(hull_planes[h], hull_nj[h], rot[k], pos[k], el_points[e], el_np[e], eye, zero,
+                               pad + grow[k]):
                         continue
                     if coarse[h] and _beyond(fine_planes[h], fine_nj[h], rot[k], pos[k], el_points[e], el_np[e], eye,
-                                             zero, pad):
+                                             zero, pad + grow[k]):
                         continue
                     maybe = True
                     break
     # the robot with itself
     for p in range(pairs.shape[0]):
         a, b = pairs[p, 0], pairs[p, 1]
-        if _dist2(bw, a, bw, b) >= (bound_r[a] + bound_r[b]) ** 2:
+        if _dist2(bw, a, bw, b) >= (bound_r[a] + bound_r[b] + grow[count + p]) ** 2:
             continue
         _spheres(rot, pos, a, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
         _spheres(rot, pos, b, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
+        touch = False  # no outer spheres touch: apart, and no sure collision to look for inside
+        for i in range(outer_n[a]):
+            reach = outer_r[a, i] + bound_r[b] + grow[count + p]
+            if _dist2(ow[a], i, bw, b) >= reach * reach:
+                continue
+            for j in range(outer_n[b]):
+                reach = outer_r[a, i] + outer_r[b, j] + grow[count + p]
+                if _dist2(ow[a], i, ow[b], j) < reach * reach:
+                    touch = True
+                    break
+            if touch:
+                break
+        if not touch:
+            continue
         # a sphere of a that does not reach b's bounding sphere (deep enough) meets none of b's: skip its row
         for i in range(inner_n[a]):
             reach = inner_r[a, i] + bound_r[b] - sure_depth
@@ -238,20 +262,6 @@ def _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, ze
                 reach = inner_r[a, i] + inner_r[b, j] - sure_depth
                 if reach > 0 and _dist2(iw[a], i, iw[b], j) < reach * reach:
                     return 1
-        touch = False
-        for i in range(outer_n[a]):
-            reach = outer_r[a, i] + bound_r[b]
-            if _dist2(ow[a], i, bw, b) >= reach * reach:
-                continue
-            for j in range(outer_n[b]):
-                reach = outer_r[a, i] + outer_r[b, j]
-                if _dist2(ow[a], i, ow[b], j) < reach * reach:
-                    touch = True
-                    break
-            if touch:
-                break
-        if not touch:
-            continue
         if link_nh[a] == 0 or link_nh[b] == 0:
             maybe = True
             continue
@@ -261,7 +271,8 @@ def _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, ze
             for y in range(link_nh[b]):
                 hb = link_hulls[b, y]
                 _move(rot, pos, b, hull_c[hb], hw, 1)
-                if _dist2(hw, 0, hw, 1) >= (hull_r[ha] + hull_r[hb] + pad) ** 2:
+                apart = pad + grow[count + p]
+                if _dist2(hw, 0, hw, 1) >= (hull_r[ha] + hull_r[hb] + apart) ** 2:
                     continue
                 if _deep_inside(hull_in[ha], hull_in_n[ha], rot, pos, a, hull_in_planes[hb], hull_in_nj[hb],
                                 rot[b], pos[b], sure_depth) or \
@@ -271,16 +282,16 @@ def _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, ze
                 if maybe:
                     continue
                 if _beyond(hull_planes[ha], hull_nj[ha], rot[a], pos[a], hull_points[hb], hull_np[hb], rot[b], pos[b],
-                           pad):
+                           apart):
                     continue
                 if _beyond(hull_planes[hb], hull_nj[hb], rot[b], pos[b], hull_points[ha], hull_np[ha], rot[a], pos[a],
-                           pad):
+                           apart):
                     continue
                 if (coarse[ha] or coarse[hb]) and (  # a k-DOP could not tell: the meshes' own hulls
                         _beyond(fine_planes[ha], fine_nj[ha], rot[a], pos[a], fine_points[hb], fine_np[hb], rot[b],
-                                pos[b], pad)
+                                pos[b], apart)
                         or _beyond(fine_planes[hb], fine_nj[hb], rot[b], pos[b], fine_points[ha], fine_np[ha], rot[a],
-                                   pos[a], pad)):
+                                   pos[a], apart)):
                     continue
                 maybe = True
     return 2 if maybe else 0
@@ -296,11 +307,11 @@ def _scratch(tables):
 
 
 @njit(cache=True, fastmath=FAST)
-def verdict_one(values, tables, pad, sure_depth):
+def verdict_one(values, tables, pad, sure_depth, grow):
     """One configuration's verdict without the threads' start-up: a planner's state check. `tables`: the
     model's tables in the order of TABLES."""
     rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved = _scratch(tables)
-    return _one(values, tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
+    return _one(values, tables, pad, sure_depth, grow, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
 
 
 @njit(cache=True, parallel=True, fastmath=FAST)
@@ -326,8 +337,9 @@ def _block(lo, hi, values, tables, pad, sure_depth, tip, tips_out, out):
     passed fifty arrays, counting references to each: a third of the time of a configuration far from
     everything)."""
     rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved = _scratch(tables)
+    still = np.zeros(tables[0].shape[0] + tables[27].shape[0])  # no growth: links, then self pairs
     for s in range(lo, hi):
-        out[s] = _one(values[s], tables, pad, sure_depth, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
+        out[s] = _one(values[s], tables, pad, sure_depth, still, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
         if tip >= 0:  # the tip's position from the same frames: the sampled points
             tips_out[s] = pos[tip]
 
@@ -370,42 +382,58 @@ def _i2(ints, meta, k):
 
 
 @njit(cache=True, fastmath=FAST)
-def verdicts_packed(q, passive, main_map, passive_map, offsets, floats, ints, meta, pad, sure_depth):
-    """`verdict_packed` for the rows of q (and of passive, (N, p)) on this thread: a short segment's states."""
+def verdicts_packed(q, passive, main_map, passive_map, offsets, floats, ints, meta, pad, sure_depth, grow):
+    """`verdict_packed` for the rows of q (and of passive, (N, p)) on this thread: a segment's states, the
+    tables unpacked and the working arrays made once."""
+    tables = _unpacked(floats, ints, meta)
+    rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved = _scratch(tables)
+    values = np.empty(offsets.shape[0])
     out = np.empty(q.shape[0], dtype=np.int8)
     for s in range(q.shape[0]):
-        out[s] = verdict_packed(q[s], passive[s], main_map, passive_map, offsets, floats, ints, meta, pad, sure_depth)
+        _values(q[s], passive[s], main_map, passive_map, offsets, values)
+        out[s] = _one(values, tables, pad, sure_depth, grow, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
     return out
 
 
 @njit(cache=True, fastmath=FAST)
-def verdict_packed(q, passive, main_map, passive_map, offsets, floats, ints, meta, pad, sure_depth):
+def verdict_packed(q, passive, main_map, passive_map, offsets, floats, ints, meta, pad, sure_depth, grow):
     """One configuration's verdict with the tables packed in three arrays (`pack`) and the joint values
     made here (values = q . main_map + passive . passive_map + offsets): a call from Python costs a few
     microseconds instead of forty arguments' and a numpy product's worth (a planner's state check)."""
-    values = offsets.copy()
+    values = np.empty(offsets.shape[0])
+    _values(q, passive, main_map, passive_map, offsets, values)
+    return verdict_one(values, _unpacked(floats, ints, meta), pad, sure_depth, grow)
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _values(q, passive, main_map, passive_map, offsets, values):
     for j in range(values.shape[0]):
+        values[j] = offsets[j]
         for i in range(q.shape[0]):
             values[j] += q[i] * main_map[i, j]
         for i in range(passive.shape[0]):
             values[j] += passive[i] * passive_map[i, j]
-    tables = (_i1(ints, meta, 0), _f3(floats, meta, 1), _f2(floats, meta, 2),
-              _i1(ints, meta, 3), _f2(floats, meta, 4), _f2(floats, meta, 5),
-              _f1(floats, meta, 6), _f3(floats, meta, 7), _f2(floats, meta, 8),
-              _i1(ints, meta, 9), _f3(floats, meta, 10), _f2(floats, meta, 11),
-              _i1(ints, meta, 12), _f2(floats, meta, 13), _f1(floats, meta, 14),
-              _f3(floats, meta, 15), _i1(ints, meta, 16), _f3(floats, meta, 17),
-              _i1(ints, meta, 18), _f2(floats, meta, 19), _f1(floats, meta, 20),
-              _i2(ints, meta, 21), _i1(ints, meta, 22), _f3(floats, meta, 23),
-              _i1(ints, meta, 24), _f3(floats, meta, 25), _i1(ints, meta, 26),
-              _i2(ints, meta, 27), _i1(ints, meta, 28), _f3(floats, meta, 29),
-              _i1(ints, meta, 30), _f3(floats, meta, 31), _i1(ints, meta, 32),
-              _f2(floats, meta, 33), _f1(floats, meta, 34), _i2(ints, meta, 35),
-              _f2(floats, meta, 36), _f1(floats, meta, 37), _i1(ints, meta, 38),
-              _i1(ints, meta, 39), _f3(floats, meta, 40), _i1(ints, meta, 41),
-              _f3(floats, meta, 42), _i1(ints, meta, 43), _i1(ints, meta, 44),
-              _f3(floats, meta, 45), _i1(ints, meta, 46))
-    return verdict_one(values, tables, pad, sure_depth)
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _unpacked(floats, ints, meta):
+    """The tables of `pack`, as views in the order of TABLES."""
+    return (_i1(ints, meta, 0), _f3(floats, meta, 1), _f2(floats, meta, 2),
+            _i1(ints, meta, 3), _f2(floats, meta, 4), _f2(floats, meta, 5),
+            _f1(floats, meta, 6), _f3(floats, meta, 7), _f2(floats, meta, 8),
+            _i1(ints, meta, 9), _f3(floats, meta, 10), _f2(floats, meta, 11),
+            _i1(ints, meta, 12), _f2(floats, meta, 13), _f1(floats, meta, 14),
+            _f3(floats, meta, 15), _i1(ints, meta, 16), _f3(floats, meta, 17),
+            _i1(ints, meta, 18), _f2(floats, meta, 19), _f1(floats, meta, 20),
+            _i2(ints, meta, 21), _i1(ints, meta, 22), _f3(floats, meta, 23),
+            _i1(ints, meta, 24), _f3(floats, meta, 25), _i1(ints, meta, 26),
+            _i2(ints, meta, 27), _i1(ints, meta, 28), _f3(floats, meta, 29),
+            _i1(ints, meta, 30), _f3(floats, meta, 31), _i1(ints, meta, 32),
+            _f2(floats, meta, 33), _f1(floats, meta, 34), _i2(ints, meta, 35),
+            _f2(floats, meta, 36), _f1(floats, meta, 37), _i1(ints, meta, 38),
+            _i1(ints, meta, 39), _f3(floats, meta, 40), _i1(ints, meta, 41),
+            _f3(floats, meta, 42), _i1(ints, meta, 43), _i1(ints, meta, 44),
+            _f3(floats, meta, 45), _i1(ints, meta, 46))
 
 
 # name:kind of verdict_one's tables, in order (f float, i int; the number: dimensions)
