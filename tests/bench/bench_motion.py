@@ -19,6 +19,7 @@ of this script's own); decision time p50 / p99 (accepted moves, and every decisi
 refusals); and the collision checks per second the checker reaches. Nothing is asserted: it prints.
 
     python tests/bench/bench_motion.py [--targets 1000] [--samples 20000] [--generous 10] [--case NAME ...]
+                                        [--planning-budget 1.0]
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, when run as a script
 
-from devices.planning.paths import STEP_MM, NoPath, PathChecker, find_path  # noqa: E402
+from devices.planning.paths import PLANNING_BUDGET_S, STEP_MM, NoPath, PathChecker, find_path  # noqa: E402
 from devices.sim.layouts.lab import LAB, robot_scene  # noqa: E402
 from devices.sim.robot import Base, RobotTwin, placed  # noqa: E402
 from devices.sim.world import World  # noqa: E402
@@ -127,7 +128,8 @@ def checks_per_second(checker: PathChecker, robot: Robot, n: int = 3000) -> floa
     return n / (time.perf_counter() - t0)
 
 
-def run_case(case: Case, n_targets: int, samples: int, budget: float, verify: int) -> tuple[Tally, Tally, float]:
+def run_case(case: Case, n_targets: int, samples: int, budget: float, verify: int,
+             planning_budget: float = PLANNING_BUDGET_S) -> tuple[Tally, Tally, Tally, float]:
     robot = Robot.load(case.urdf)
     scene = placed(case.scene, case.base)
     t0 = time.perf_counter()
@@ -148,7 +150,7 @@ def run_case(case: Case, n_targets: int, samples: int, budget: float, verify: in
         world = World(speed=None)
         build_into(case.scene, world.client)
         world.start()
-        twin = RobotTwin(world, robot, "bench", case.base, case.scene,
+        twin = RobotTwin(world, robot, "bench", case.base, case.scene, planning_budget=planning_budget,
                          collision_model="fast" if label == "fast" else "exact")
         twin.set_workspace(workspace)
         tally = Tally()
@@ -243,11 +245,15 @@ def main() -> None:
     ap.add_argument("--verify", type=int, default=0,
                     help="re-search at most this many refusals per run (0: all of them)")
     ap.add_argument("--case", action="append", help="only these cases (by name)")
+    ap.add_argument("--planning-budget", type=float, default=PLANNING_BUDGET_S,
+                    help="seconds a robot twin's planner may take for one move (its default: %(default)s)")
     args = ap.parse_args()
+    print(f"planning budget {args.planning_budget:g} s per move")
     for case in cases():
         if args.case and case.name not in args.case:
             continue
-        before, now, fast, rate = run_case(case, args.targets, args.samples, args.generous, args.verify)
+        before, now, fast, rate = run_case(case, args.targets, args.samples, args.generous, args.verify,
+                                           args.planning_budget)
         report(case, before, now, fast, args.targets, rate, args.generous)
 
 
