@@ -6,6 +6,7 @@ the exact test) are in tests/bench/bench_collision_model.py.
 """
 from __future__ import annotations
 
+import msgspec
 import numpy as np
 import pybullet as pb
 import pytest
@@ -17,10 +18,20 @@ from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.fast_collision import COLLIDES, FREE, UNSURE, FastCollision
 from tdgen.robot.link_frames import LinkFrames
 from tdgen.robot.model import Robot
-from tdgen.robot.surroundings import default_scene, load_scene
+from tdgen.robot.surroundings import BoxBody, default_scene, load_scene
 from tdgen.sampling import random_configurations, sample_workspace
 
 SAMPLES = 1500
+
+
+def _tilted_boxes():
+    """table-and-wall with boxes turned about two axes on the table: their corners poke into links at every
+    angle (the test of a sure collision that looks for an element's corner deep inside a link)."""
+    base = load_scene("table-and-wall")
+    boxes = [BoxBody(name=f"box{i}", size=(0.1 + 0.05 * i, 0.2, 0.15 + 0.03 * i),
+                     position=(0.3 + 0.05 * i, 0.2 - 0.15 * i, 0.725), rpy=(0.0, 10.0 * i + 5.0, 25.0 * i))
+             for i in range(4)]
+    return msgspec.structs.replace(base, bodies=[*base.bodies, *boxes])
 
 
 def _lab_arms() -> dict[str, tuple[Robot, object]]:
@@ -29,6 +40,7 @@ def _lab_arms() -> dict[str, tuple[Robot, object]]:
     ur10 = Robot.load("ur10.urdf")
     return {"ur10 table-and-wall": (ur10, load_scene("table-and-wall")),
             "ur10 cluttered-lab": (ur10, load_scene("cluttered-lab")),
+            "ur10 beside tilted boxes": (ur10, _tilted_boxes()),
             "uarm iot-platform": (uarm, load_scene("iot-platform", "uarm")),
             "dobot iot-platform": (dobot, load_scene("iot-platform", "dobot")),
             "panda (pybullet_data)": (Robot.load("franka_panda/panda.urdf"), None)}

@@ -187,7 +187,8 @@ class SphereModel:
         centres = np.array([(e.points.min(axis=0) + e.points.max(axis=0)) / 2 for e in elements]).reshape(-1, 3)
         radii = np.array([np.max(np.linalg.norm(e.points - c, axis=1)) for e, c in zip(elements, centres)])
         corners, counts = _stacked([e.points for e in elements], (3,))
-        return _groups(centres, radii) | {"el_points": corners, "el_np": counts,
+        inside, inside_counts = _stacked([e.inner_points() for e in elements], (3,))
+        return _groups(centres, radii) | {"el_points": corners, "el_np": counts, "el_in": inside, "el_in_n": inside_counts,
             "el_outer": _planes(outside), "el_outer_n": np.array([len(p) for p in outside], dtype=np.int64),
             "el_inner": _planes([e.planes for e in elements]),
             "el_inner_n": np.array([len(e.planes) for e in elements], dtype=np.int64), "el_c": centres, "el_r": radii}

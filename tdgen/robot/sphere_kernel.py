@@ -113,6 +113,26 @@ def _deep_inside(points, n_points, rot, pos, k, planes, n_planes, plane_rot, pla
 
 
 @njit(cache=True, fastmath=FAST)
+def _world_inside(points, n_points, planes, n_planes, plane_rot, plane_pos, depth):
+    """A point (world frame) deeper than `depth` inside half-spaces given in the frame (plane_rot, plane_pos)."""
+    if n_planes == 0:
+        return False
+    for v in range(n_points):
+        x, y, z = points[v, 0] - plane_pos[0], points[v, 1] - plane_pos[1], points[v, 2] - plane_pos[2]
+        lx = plane_rot[0, 0] * x + plane_rot[1, 0] * y + plane_rot[2, 0] * z
+        ly = plane_rot[0, 1] * x + plane_rot[1, 1] * y + plane_rot[2, 1] * z
+        lz = plane_rot[0, 2] * x + plane_rot[1, 2] * y + plane_rot[2, 2] * z
+        inside = True
+        for j in range(n_planes):
+            if lx * planes[j, 0] + ly * planes[j, 1] + lz * planes[j, 2] - planes[j, 3] >= -depth:
+                inside = False
+                break
+        if inside:
+            return True
+    return False
+
+
+@njit(cache=True, fastmath=FAST)
 def _sphere_in(centres, i, radius, planes, n_planes, depth):
     """Does sphere i overlap the polytope by more than `depth`? Its centre inside, deep enough; or outside
     with the nearest point on the face it is beyond (its foot inside every other half-space) closer
@@ -163,7 +183,7 @@ def _one(values, tables, pad, sure_depth, grow, rot, pos, tmp, ow, iw, bw, hw, e
      hull_in, hull_in_n, hull_in_planes, hull_in_nj,
      pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
      group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-     el_points, el_np) = tables
+     el_points, el_np, el_in, el_in_n) = tables
     count = parent.shape[0]
     _frames(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, rot, pos, tmp)
     for k in range(count):
@@ -209,6 +229,10 @@ def _one(values, tables, pad, sure_depth, grow, rot, pos, tmp, ow, iw, bw, hw, e
                         h = link_hulls[k, x]
                         if _deep_inside(hull_in[h], hull_in_n[h], rot, pos, k, el_inner[e], el_inner_n[e], eye, zero,
                                         sure_depth):
+                            return 1
+                        # the other way round: a point surely in the element (a box's corner) deep inside the link
+                        if _world_inside(el_in[e], el_in_n[e], hull_in_planes[h], hull_in_nj[h], rot[k], pos[k],
+                                         sure_depth):
                             return 1
                 if maybe:
                     continue
@@ -433,7 +457,7 @@ def _unpacked(floats, ints, meta):
             _f2(floats, meta, 36), _f1(floats, meta, 37), _i1(ints, meta, 38),
             _i1(ints, meta, 39), _f3(floats, meta, 40), _i1(ints, meta, 41),
             _f3(floats, meta, 42), _i1(ints, meta, 43), _i1(ints, meta, 44),
-            _f3(floats, meta, 45), _i1(ints, meta, 46))
+            _f3(floats, meta, 45), _i1(ints, meta, 46), _f3(floats, meta, 47), _i1(ints, meta, 48))
 
 
 # name:kind of verdict_one's tables, in order (f float, i int; the number: dimensions)
@@ -444,7 +468,7 @@ PACKING = [
     'link_nh:i1', 'hull_in:f3', 'hull_in_n:i1', 'hull_in_planes:f3', 'hull_in_nj:i1', 'pairs:i2',
     'scene_links:i1', 'el_outer:f3', 'el_outer_n:i1', 'el_inner:f3', 'el_inner_n:i1', 'el_c:f2', 'el_r:f1',
     'touches:i2', 'group_c:f2', 'group_r:f1', 'group_start:i1', 'group_members:i1', 'fine_points:f3', 'fine_np:i1',
-    'fine_planes:f3', 'fine_nj:i1', 'coarse:i1', 'el_points:f3', 'el_np:i1',
+    'fine_planes:f3', 'fine_nj:i1', 'coarse:i1', 'el_points:f3', 'el_np:i1', 'el_in:f3', 'el_in_n:i1',
 ]
 TABLES = tuple(entry.split(":")[0] for entry in PACKING)  # the same names: the parallel loop's arguments
 
