@@ -129,7 +129,8 @@ def checks_per_second(checker: PathChecker, robot: Robot, n: int = 3000) -> floa
 
 
 def run_case(case: Case, n_targets: int, samples: int, budget: float, verify: int,
-             planning_budget: float = PLANNING_BUDGET_S) -> tuple[Tally, Tally, Tally, float]:
+             planning_budget: float = PLANNING_BUDGET_S,
+             models: tuple[str, ...] = ("before", "exact", "fast")) -> tuple[Tally, Tally, Tally, float]:
     robot = Robot.load(case.urdf)
     scene = placed(case.scene, case.base)
     t0 = time.perf_counter()
@@ -146,7 +147,7 @@ def run_case(case: Case, n_targets: int, samples: int, budget: float, verify: in
     generous_checker = PathChecker(CollisionWorld(robot, scene))
     rate = checks_per_second(generous_checker, robot)
     tallies = {}
-    for label in ("before", "exact", "fast"):
+    for label in models:
         world = World(speed=None)
         build_into(case.scene, world.client)
         world.start()
@@ -185,6 +186,9 @@ def run_case(case: Case, n_targets: int, samples: int, budget: float, verify: in
                 teleport(twin, plan.q)
             if not (referee.free(path[-1]) and referee.path_free(path)):
                 tally.unsafe += 1
+                if label != "before":  # the checked moves must never get here: say where, keep the path
+                    print(f"  {label}: an accepted path collides ({unsafe_detail(referee, path)})", flush=True)
+                    np.save(f"unsafe-{label}-{case.name.replace(' ', '_')}-{tally.unsafe}.npy", path)
         moved = time.perf_counter() - t0
         for start, target in (refused_at if verify <= 0 else
                               [refused_at[i] for i in np.random.default_rng(3).permutation(len(refused_at))[:verify]]):
@@ -197,7 +201,24 @@ def run_case(case: Case, n_targets: int, samples: int, budget: float, verify: in
         tallies[label] = tally
     referee.world.close()
     generous_checker.world.close()
-    return tallies["before"], tallies["exact"], tallies["fast"], rate
+    return tallies.get("before", Tally()), tallies.get("exact", Tally()), tallies.get("fast", Tally()), rate
+
+
+def unsafe_detail(referee: PathChecker, path: np.ndarray) -> str:
+    """Where the referee finds the collision: which segment, how far along, and what touches."""
+    for i, (a, b) in enumerate(zip(path[:-1], path[1:])):
+        n = referee.subdivisions(a, b)
+        for k in range(1, n + 1):
+            q = a + (b - a) * (k / n)
+            if not referee.free(q):
+                fresh = CollisionWorld(referee.world.robot, referee.world.scene)  # no contacts kept from before
+                try:
+                    again = "collides" if fresh.collides(q) else "is free"
+                finally:
+                    fresh.close()
+                return (f"segment {i + 1} of {len(path) - 1}, at {k / n:.4f} of it ({n} referee states): "
+                        f"{'; '.join(referee.world.what_collides(q))}; in a new pybullet world that state {again}")
+    return "only its last state"
 
 
 def report(case: Case, before: Tally, now: Tally, fast: Tally, n: int, rate: float, budget: float) -> None:
@@ -245,6 +266,7 @@ def main() -> None:
     ap.add_argument("--verify", type=int, default=0,
                     help="re-search at most this many refusals per run (0: all of them)")
     ap.add_argument("--case", action="append", help="only these cases (by name)")
+    ap.add_argument("--models", default="before,exact,fast", help="which columns to run (comma-separated)")
     ap.add_argument("--planning-budget", type=float, default=PLANNING_BUDGET_S,
                     help="seconds a robot twin's planner may take for one move (its default: %(default)s)")
     args = ap.parse_args()
@@ -253,7 +275,7 @@ def main() -> None:
         if args.case and case.name not in args.case:
             continue
         before, now, fast, rate = run_case(case, args.targets, args.samples, args.generous, args.verify,
-                                           args.planning_budget)
+                                           args.planning_budget, tuple(args.models.split(",")))
         report(case, before, now, fast, args.targets, rate, args.generous)
 
 
