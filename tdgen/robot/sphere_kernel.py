@@ -87,6 +87,20 @@ def _beyond(planes, n_planes, plane_rot, plane_pos, points, n_points, rot_b, pos
     return False
 
 
+@njit(cache=True, inline="always", fastmath=FAST)
+def _point_deep_in(wx, wy, wz, planes, n_planes, plane_rot, plane_pos, depth):
+    """Is the point (world frame) deeper than `depth` inside half-spaces given in the frame (plane_rot,
+    plane_pos)?"""
+    x, y, z = wx - plane_pos[0], wy - plane_pos[1], wz - plane_pos[2]
+    lx = plane_rot[0, 0] * x + plane_rot[1, 0] * y + plane_rot[2, 0] * z
+    ly = plane_rot[0, 1] * x + plane_rot[1, 1] * y + plane_rot[2, 1] * z
+    lz = plane_rot[0, 2] * x + plane_rot[1, 2] * y + plane_rot[2, 2] * z
+    for j in range(n_planes):
+        if lx * planes[j, 0] + ly * planes[j, 1] + lz * planes[j, 2] - planes[j, 3] >= -depth:
+            return False
+    return True
+
+
 @njit(cache=True, fastmath=FAST)
 def _deep_inside(points, n_points, rot, pos, k, planes, n_planes, plane_rot, plane_pos, depth):
     """A point of a hull of link k (its frame) deeper than `depth` inside half-spaces given in the frame
@@ -97,37 +111,19 @@ def _deep_inside(points, n_points, rot, pos, k, planes, n_planes, plane_rot, pla
         wx = rot[k, 0, 0] * points[v, 0] + rot[k, 0, 1] * points[v, 1] + rot[k, 0, 2] * points[v, 2] + pos[k, 0]
         wy = rot[k, 1, 0] * points[v, 0] + rot[k, 1, 1] * points[v, 1] + rot[k, 1, 2] * points[v, 2] + pos[k, 1]
         wz = rot[k, 2, 0] * points[v, 0] + rot[k, 2, 1] * points[v, 1] + rot[k, 2, 2] * points[v, 2] + pos[k, 2]
-        # into the planes' frame
-        x, y, z = wx - plane_pos[0], wy - plane_pos[1], wz - plane_pos[2]
-        lx = plane_rot[0, 0] * x + plane_rot[1, 0] * y + plane_rot[2, 0] * z
-        ly = plane_rot[0, 1] * x + plane_rot[1, 1] * y + plane_rot[2, 1] * z
-        lz = plane_rot[0, 2] * x + plane_rot[1, 2] * y + plane_rot[2, 2] * z
-        inside = True
-        for j in range(n_planes):
-            if lx * planes[j, 0] + ly * planes[j, 1] + lz * planes[j, 2] - planes[j, 3] >= -depth:
-                inside = False
-                break
-        if inside:
+        if _point_deep_in(wx, wy, wz, planes, n_planes, plane_rot, plane_pos, depth):
             return True
     return False
 
 
 @njit(cache=True, fastmath=FAST)
 def _world_inside(points, n_points, planes, n_planes, plane_rot, plane_pos, depth):
-    """A point (world frame) deeper than `depth` inside half-spaces given in the frame (plane_rot, plane_pos)."""
+    """A point (world frame: a scene element's) deeper than `depth` inside half-spaces given in the frame
+    (plane_rot, plane_pos)."""
     if n_planes == 0:
         return False
     for v in range(n_points):
-        x, y, z = points[v, 0] - plane_pos[0], points[v, 1] - plane_pos[1], points[v, 2] - plane_pos[2]
-        lx = plane_rot[0, 0] * x + plane_rot[1, 0] * y + plane_rot[2, 0] * z
-        ly = plane_rot[0, 1] * x + plane_rot[1, 1] * y + plane_rot[2, 1] * z
-        lz = plane_rot[0, 2] * x + plane_rot[1, 2] * y + plane_rot[2, 2] * z
-        inside = True
-        for j in range(n_planes):
-            if lx * planes[j, 0] + ly * planes[j, 1] + lz * planes[j, 2] - planes[j, 3] >= -depth:
-                inside = False
-                break
-        if inside:
+        if _point_deep_in(points[v, 0], points[v, 1], points[v, 2], planes, n_planes, plane_rot, plane_pos, depth):
             return True
     return False
 
