@@ -280,3 +280,37 @@ def test_a_start_pose_touching_the_mounting_surface_names_the_pair_and_allowing_
     assert allowed.exit_code == 0, allowed.output
     unknown = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "c"), "--allow-collision", "l1/nothing-here"])
     assert unknown.exit_code == 2 and "'nothing-here'" in unknown.stderr and "mounting-surface" in unknown.stderr
+
+
+def test_a_joint_with_a_comma_in_its_numbers_is_refused_by_name(tmp_path):
+    """urdfdom reads `rpy="1.57, 0 0"` as an error too (KIT's ARMAR-6 URDF on the package index has two)."""
+    text = arm_urdf(tmp_path).read_text().replace('<origin xyz="0 0 0.2"/>', '<origin xyz="0 0 0.2" rpy="1.57, 0 0"/>', 1)
+    (tmp_path / "comma.urdf").write_text(text)
+    with pytest.raises(RobotError, match=r"comma\.urdf: malformed <joint> 'j1' \(ValueError: <origin> rpy=\"1\.57, 0 0\" "
+                                         r"is not three numbers separated by spaces\)"):
+        Robot.load(tmp_path / "comma.urdf")
+
+
+def test_a_zero_radius_sphere_leaves_the_arm_usable_and_the_fast_model_exact(tmp_path):
+    """Some URDFs hold a link's place with `<sphere radius="0.00"/>` (KIT's ARMAR-4 on the package index: its
+    ankles and eyes); its corners are one point, which has no hull (qhull failed, and tdgen with it): the
+    fast model bounds it by the faces of its box instead."""
+    from tdgen.robot.collision import CollisionWorld
+    from tdgen.robot.fast_collision import COLLIDES, FREE, FastCollision
+    from tdgen.robot.surroundings import default_scene
+    from tdgen.sampling import random_configurations
+
+    text = arm_urdf(tmp_path).read_text().replace(f'<link name="l2"><collision><geometry>{BOX}',
+                                                  '<link name="l2"><collision><geometry><sphere radius="0.00"/>')
+    (tmp_path / "placeholder.urdf").write_text(text)
+    robot = Robot.load(tmp_path / "placeholder.urdf")
+    world = CollisionWorld(robot, default_scene(reach=robot.reach()))
+    try:
+        fast = FastCollision(world)
+        q = random_configurations(robot, 800, 4)
+        verdict, exact = fast.spheres.verdicts(q), world.colliding(q)
+        assert int(np.sum((verdict == FREE) & exact)) == 0
+        assert int(np.sum((verdict == COLLIDES) & ~exact)) == 0
+        assert np.mean(verdict == FREE) > 0.3, "the arm's free configurations need no exact test"
+    finally:
+        world.close()

@@ -299,11 +299,14 @@ def resolve_urdf(urdf: str | Path) -> Path:
     raise RobotError(f"{urdf}: URDF file not found (looked here, in {ROBOTS_DIR} and in pybullet_data)")
 
 
-def _floats(text: str | None, default: tuple[float, float, float]) -> tuple[float, float, float]:
-    """Three numbers of a URDF attribute (xyz, rpy, axis)."""
+def _floats(text: str | None, default: tuple[float, float, float], what: str = "") -> tuple[float, float, float]:
+    """Three numbers of a URDF attribute (xyz, rpy, axis), separated by spaces as urdfdom reads them."""
     if not text:
         return default
-    x, y, z = (float(v) for v in text.split())
+    try:
+        x, y, z = (float(v) for v in text.split())
+    except ValueError:
+        raise ValueError(f'{what}="{text}" is not three numbers separated by spaces') from None
     return x, y, z
 
 
@@ -324,6 +327,7 @@ def _parse_urdf(path: Path) -> tuple[str, str, dict[str, UrdfJoint]]:
     if root_el.tag != "robot":
         raise RobotError(f"{path}: not a URDF (root element <{root_el.tag}>, expected <robot>)")
     joints: dict[str, UrdfJoint] = {}
+    el = None
     try:
         for el in root_el.findall("joint"):
             origin, axis, limit, mimic = (el.find(t) for t in ("origin", "axis", "limit", "mimic"))
@@ -331,16 +335,17 @@ def _parse_urdf(path: Path) -> tuple[str, str, dict[str, UrdfJoint]]:
             joints[el.attrib["name"]] = UrdfJoint(
                 name=el.attrib["name"], type=el.attrib["type"],
                 parent=_child(el, "parent").attrib["link"], child=_child(el, "child").attrib["link"],
-                xyz=_floats(origin.get("xyz") if origin is not None else None, (0.0, 0.0, 0.0)),
-                rpy=_floats(origin.get("rpy") if origin is not None else None, (0.0, 0.0, 0.0)),
-                axis=_floats(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0)),
+                xyz=_floats(origin.get("xyz") if origin is not None else None, (0.0, 0.0, 0.0), "<origin> xyz"),
+                rpy=_floats(origin.get("rpy") if origin is not None else None, (0.0, 0.0, 0.0), "<origin> rpy"),
+                axis=_floats(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0), "<axis> xyz"),
                 lower=float(lim["lower"]) if "lower" in lim else None,
                 upper=float(lim["upper"]) if "upper" in lim else None,
                 velocity=float(lim["velocity"]) if "velocity" in lim else None,
                 mimic=(mimic.attrib["joint"], float(mimic.get("multiplier", 1)), float(mimic.get("offset", 0)))
                 if mimic is not None else None)
     except (KeyError, AttributeError, ValueError) as exc:
-        raise RobotError(f"{path}: malformed <joint> ({type(exc).__name__}: {exc})") from None
+        named = f" {el.get('name')!r}" if el is not None and el.get("name") else ""
+        raise RobotError(f"{path}: malformed <joint>{named} ({type(exc).__name__}: {exc})") from None
     links = [el.attrib["name"] for el in root_el.findall("link") if "name" in el.attrib]
     roots = [n for n in links if n not in {j.child for j in joints.values()}]
     if len(roots) != 1:

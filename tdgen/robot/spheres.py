@@ -354,9 +354,14 @@ def scene_elements(pb, client: int, body: int) -> list[Convex]:
 
 def outer_planes(element: Convex) -> np.ndarray:
     """(P, 4) half-spaces whose intersection contains the element (its points' convex hull)."""
-    from scipy.spatial import ConvexHull
+    from scipy.spatial import ConvexHull, QhullError
 
     if element.outside is not None:
         return element.outside
-    found = ConvexHull(element.points)
+    try:
+        found = ConvexHull(element.points)
+    except QhullError:  # flat, a line or a point (a URDF's zero-radius sphere): the faces of its bounding box
+        lo, hi = element.points.min(axis=0), element.points.max(axis=0)
+        return np.array([[1.0, 0, 0, hi[0]], [-1.0, 0, 0, -lo[0]], [0, 1.0, 0, hi[1]], [0, -1.0, 0, -lo[1]],
+                         [0, 0, 1.0, hi[2]], [0, 0, -1.0, -lo[2]]])
     return _distinct(np.column_stack([found.equations[:, :3], -found.equations[:, 3]]))
