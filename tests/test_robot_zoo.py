@@ -1,4 +1,5 @@
-"""Arms nobody here picked: the `example-robot-data` package's robots, as a researcher would drop them in.
+"""Arms nobody here picked: the `example-robot-data` package's robots and an arm of KIT's ARMAR-4 humanoid
+(the `armar` package), as a researcher would drop them in.
 
 For each arm of the zoo (6- and 7-DoF arms, a 5-DoF arm with a jaw, grippers with mimic joints,
 unlimited joints, two-arm robots, mobile manipulators, an arm on a quadruped): the chain chosen
@@ -43,11 +44,21 @@ def _share() -> Path | None:
     return Path(str(dist.locate_file("cmeel.prefix/share/example-robot-data")))
 
 
-SHARE = _share()
-if SHARE is None:
+def _armar() -> Path | None:
+    """KIT's ARMAR humanoids (the `armar` package: URDFs and meshes, CC BY-NC 4.0): a second collection."""
+    try:
+        dist = importlib.metadata.distribution("armar")
+    except importlib.metadata.PackageNotFoundError:
+        return None
+    return Path(str(dist.locate_file("armar/description/urdf")))
+
+
+SHARE, ARMAR = _share(), _armar()
+if SHARE is None or ARMAR is None:
+    missing = "example-robot-data" if SHARE is None else "armar"
     if os.environ.get("CI") == "true":
-        pytest.fail("example-robot-data is not installed (a test extra: pip install -e '.[test]')", pytrace=False)
-    pytest.skip("example-robot-data is not installed (pip install -e '.[test]')", allow_module_level=True)
+        pytest.fail(f"{missing} is not installed (a test extra: pip install -e '.[test]')", pytrace=False)
+    pytest.skip(f"{missing} is not installed (pip install -e '.[test]')", allow_module_level=True)
 ROBOTS = SHARE / "robots"
 
 # id: (URDF under robots/, Robot.load options, expected (base link, tip link, joints), what kind of arm)
@@ -69,6 +80,9 @@ ZOO = {
     "tiago": ("tiago_description/robots/tiago.urdf", {"fixed": {"torso_lift_joint": 100.0}},
               ("base_footprint", "hand_palm_link", 7), "mobile manipulator with a five-finger hand, torso held"),
     "b1-z1": ("b1_description/urdf/b1-z1.urdf", {}, ("base", "gripperStator", 6), "an arm on a quadruped"),
+    # from the armar package (an absolute path: ROBOTS / it is itself); zero-radius spheres hold some links' places
+    "armar4-arm": (ARMAR / "armar4_fixed_hands_and_legs.urdf", {"base_link": "torso_pitch", "ee": "arm_wri2_r0"},
+                   ("torso_pitch", "arm_wri2_r0", 8), "a humanoid's 8-DoF arm from its torso (KIT's ARMAR-4)"),
 }
 
 
@@ -170,6 +184,7 @@ def _robot_args(name: str) -> list[str]:
     through --package-path, not pybullet's search; Talos' arm hangs from its shoulder)."""
     _, options, _, _ = ZOO[name]
     args = ["--ee", options["ee"]] if "ee" in options else []
+    args += ["--base-link", options["base_link"]] if "base_link" in options else []
     args += [f"--fix-joint={j}={v:g}" for j, v in options.get("fixed", {}).items()]
     if name == "pr2":
         args += ["--package-path", f"example-robot-data={SHARE}"]
