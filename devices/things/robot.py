@@ -56,6 +56,7 @@ log = logging.getLogger(__name__)
 TDGEN = "tdgen"               # the service's Thing name (tdgen.service.THING)
 FLAGS = "flags"               # its `<robot>.flags` file (tdgen.service.FLAGS)
 STATE_RATE = 20.0             # joint-state publications per wall second while moving, at most
+ADOPT_RETRIES_S = (1.0, 2.0, 4.0, 8.0, 15.0, 30.0)  # waits before fetching a generated TD again (60 s in all)
 CARTESIAN = ("getCartesianposition", "moveToCartesianPosition")
 
 
@@ -211,8 +212,10 @@ class RobotThing:
             log.warning("%s: the tdgen service could not generate the workspace: %s", self.name, data.get("error"))
             self.twin.set_workspace_failed(str(data.get("error")))
 
-    def _adopt(self, hash: str, version: int) -> None:
-        """Fetch the generated artefacts, check with them, serve them, replace the TD."""
+    def _adopt(self, hash: str, version: int, attempt: int = 0) -> None:
+        """Fetch the generated artefacts, check with them, serve them, replace the TD. A fetch the service
+        did not answer (busy: compiling its loops on a fresh machine, generating for other robots) is tried
+        again a few times, or the robot would stay without its TD until the next scene change."""
         if version < self.twin.version:
             return  # generated for surroundings that have changed since; the next one is on its way
         if hash == self.twin.workspace_hash and self.thing.td.version == {"instance": str(version)}:
@@ -225,7 +228,18 @@ class RobotThing:
             files["points.csv"] = made.data if made is not None else self._service_file("points.csv")
             workspace, flags = self._workspace_of(files["points.csv"], made)
             td = generated_td(files["td.json"], self.twin, version)
-        except (Problem, ValueError, msgspec.DecodeError, msgspec.ValidationError) as e:
+        except Problem as e:
+            if attempt < len(ADOPT_RETRIES_S):
+                delay = ADOPT_RETRIES_S[attempt]
+                log.info("%s: fetching the generated artefacts (%s) failed: %s; again in %g s", self.name, hash, e,
+                         delay)
+                retry = threading.Timer(delay, self._adopt_again, (hash, version, attempt + 1))
+                retry.daemon = True
+                retry.start()
+                return
+            log.warning("%s: cannot fetch the generated artefacts (%s), %d tries: %s", self.name, hash, attempt + 1, e)
+            return
+        except (ValueError, msgspec.DecodeError, msgspec.ValidationError) as e:
             log.warning("%s: cannot use the generated artefacts (%s): %s", self.name, hash, e)
             return
         self._artefacts = {name: files[name] for name in ARTEFACTS}
@@ -234,6 +248,12 @@ class RobotThing:
         self.thing.update_td(td)
         log.info("%s: TD generated (hash %s, version %d, %d points)", self.name, hash, version,
                  len(workspace.positions))
+
+    def _adopt_again(self, hash: str, version: int, attempt: int) -> None:
+        try:
+            self._worker.submit(self._adopt, hash, version, attempt)
+        except RuntimeError:  # the robot has stopped
+            pass
 
     def _service_file(self, name: str) -> bytes:
         return self.client.file(TDGEN, f"{self.name}.{name}").payload

@@ -48,27 +48,42 @@ def _chain(v, rots, trans, prismatic, post, pos, axes, linear, rot):
     """The walk down the chain for rows of joint values v (N, m), compiled: a numpy walk costs ~100 µs per
     call whatever N, which a few rows (an IK's) pay on every iteration. Fills the tip's position pos (N, 3),
     each joint's z axis and its effect on the tip's position (N, m, 3: z x (tip - origin) turning, z
-    sliding) and the last joint frame's orientation rot (N, 3, 3)."""
+    sliding) and the last joint frame's orientation rot (N, 3, 3). Plain loops: they compile in a second,
+    matrix products would take several (a robot process pays that once per machine)."""
+    r, t = np.empty((3, 3)), np.empty((3, 3))
+    p = np.empty(3)
     for s in range(v.shape[0]):
-        r = np.eye(3)
-        p = np.zeros(3)
+        for a in range(3):
+            p[a] = 0.0
+            for b in range(3):
+                r[a, b] = 1.0 if a == b else 0.0
         for k in range(v.shape[1]):
-            p = p + r @ trans[k]
-            r = r @ rots[k]
-            axes[s, k] = r[:, 2]
-            linear[s, k] = p  # the joint's origin, until the tip is known
+            for a in range(3):
+                p[a] += r[a, 0] * trans[k, 0] + r[a, 1] * trans[k, 1] + r[a, 2] * trans[k, 2]
+            for a in range(3):
+                for b in range(3):
+                    t[a, b] = r[a, 0] * rots[k, 0, b] + r[a, 1] * rots[k, 1, b] + r[a, 2] * rots[k, 2, b]
+            for a in range(3):
+                axes[s, k, a] = t[a, 2]
+                linear[s, k, a] = p[a]  # the joint's origin, until the tip is known
             if prismatic[k]:
-                p = p + r[:, 2] * v[s, k]
+                for a in range(3):
+                    p[a] += t[a, 2] * v[s, k]
+                    r[a, 0], r[a, 1], r[a, 2] = t[a, 0], t[a, 1], t[a, 2]
             else:
                 c, sn = np.cos(v[s, k]), np.sin(v[s, k])
-                x, y = r[:, 0].copy(), r[:, 1].copy()
-                r[:, 0] = c * x + sn * y
-                r[:, 1] = c * y - sn * x
-        pos[s] = p + r @ post
-        rot[s] = r
+                for a in range(3):
+                    r[a, 0] = c * t[a, 0] + sn * t[a, 1]
+                    r[a, 1] = c * t[a, 1] - sn * t[a, 0]
+                    r[a, 2] = t[a, 2]
+        for a in range(3):
+            pos[s, a] = p[a] + r[a, 0] * post[0] + r[a, 1] * post[1] + r[a, 2] * post[2]
+            for b in range(3):
+                rot[s, a, b] = r[a, b]
         for k in range(v.shape[1]):
             if prismatic[k]:
-                linear[s, k] = axes[s, k]
+                for a in range(3):
+                    linear[s, k, a] = axes[s, k, a]
             else:
                 lx, ly, lz = pos[s, 0] - linear[s, k, 0], pos[s, 1] - linear[s, k, 1], pos[s, 2] - linear[s, k, 2]
                 x, y, z = axes[s, k, 0], axes[s, k, 1], axes[s, k, 2]
