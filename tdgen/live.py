@@ -200,7 +200,11 @@ class LiveSamples:
         for row in np.flatnonzero(self.base_samples.collision)[:PAIR_SAMPLES]:
             self.worlds.base_pairs(int(row), self.base_samples.q[row])
         self.worlds.at_rest()
-        self.worlds.part([])
+        part = self.worlds.part([])
+        if self.model == "fast":  # the robot's spheres for a world of parts, fitted once per robot (~30 ms)
+            from tdgen.robot.fast_collision import FastCollision
+
+            FastCollision(part)
         self.worlds.whole(self.scene)
 
     @property

@@ -141,6 +141,9 @@ class RobotThing:
         self.thing.expose()
         self.publisher.start()
         self.publisher.flush()
+        # the world a box about to be put down is checked in (`RobotTwin.would_touch`), loaded now, not by the
+        # first addObstacle (some 15-30 ms on its way)
+        self._worker.submit(self.twin.would_touch, [])
         return self
 
     def __exit__(self, *exc) -> None:

@@ -106,6 +106,7 @@ def main() -> None:
         print(f"{what + 'Obstacle':26} {_fig(a):>22} {_fig(b):>22} {statistics.median(a) / statistics.median(b):>6.1f}x")
     for what, label in (("before", "box centre, before"), ("after", "box centre, right after")):
         print(f"{label:26} {_p(scratch[what]):>22} {_p(live[what]):>22}")
+    print(f"live addObstacle, round by round (ms): {', '.join(f'{v * 1000:.0f}' for v in live['add'])}")
     print("\n(median / max in ms; the goal: the new TD within 100 ms. Box centre: the collision probability a\n"
           "plan to it is answered with, median; right after the add it comes from the new workspace)")
 
