@@ -36,24 +36,17 @@ TARGETS = 200
 TOL_MM = 0.01
 
 
-def _share() -> Path | None:
+def _data(distribution: str, folder: str) -> Path | None:
+    """A data package's folder, or None when it is not installed."""
     try:
-        dist = importlib.metadata.distribution("example-robot-data")
+        dist = importlib.metadata.distribution(distribution)
     except importlib.metadata.PackageNotFoundError:
         return None
-    return Path(str(dist.locate_file("cmeel.prefix/share/example-robot-data")))
+    return Path(str(dist.locate_file(folder)))
 
 
-def _armar() -> Path | None:
-    """KIT's ARMAR humanoids (the `armar` package: URDFs and meshes, CC BY-NC 4.0): a second collection."""
-    try:
-        dist = importlib.metadata.distribution("armar")
-    except importlib.metadata.PackageNotFoundError:
-        return None
-    return Path(str(dist.locate_file("armar/description/urdf")))
-
-
-SHARE, ARMAR = _share(), _armar()
+SHARE = _data("example-robot-data", "cmeel.prefix/share/example-robot-data")
+ARMAR = _data("armar", "armar/description/urdf")  # KIT's ARMAR humanoids: a second collection (CC BY-NC 4.0)
 if SHARE is None or ARMAR is None:
     missing = "example-robot-data" if SHARE is None else "armar"
     if os.environ.get("CI") == "true":
