@@ -135,7 +135,21 @@ def stop_process(p: subprocess.Popen, timeout: float = 15.0) -> bool:
 def start_lab(tmp: Path, scene: str | None = "lights", http: bool = True, things: set[str] | None = None,
               extra_args: tuple[str, ...] = (), view: bool = False, options: tuple[str, ...] = ()) -> Lab:
     """Start `twinmesh up SCENE` (None: `twinmesh up`, the default scene) on free ports and wait until it serves.
-    The live 3D view only when asked (`view`: on a free port; its URL is in the lab's ready line)."""
+    The live 3D view only when asked (`view`: on a free port; its URL is in the lab's ready line). A port found
+    free can be taken by another process before the lab binds it: then the lab starts again on other ports."""
+    for attempt in range(3):
+        try:
+            return _start_lab(tmp, scene, http, things, extra_args, view, options)
+        except Exception:
+            log = tmp / f"lab-{scene or 'default'}.log"
+            taken = log.exists() and "address already in use" in log.read_text(errors="replace").lower()
+            if not taken or attempt == 2:
+                raise
+    raise AssertionError("unreachable")
+
+
+def _start_lab(tmp: Path, scene: str | None, http: bool, things: set[str] | None, extra_args: tuple[str, ...],
+               view: bool, options: tuple[str, ...]) -> Lab:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     port = free_port()
     args = ["up", *([scene] if scene else []), *extra_args] + (["--http", f"127.0.0.1:{port}"] if http else ["--no-http"])
