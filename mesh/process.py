@@ -5,6 +5,7 @@ returns when `stop` is set; whoever starts it (a terminal, the lab's supervisor)
 """
 from __future__ import annotations
 
+import faulthandler
 import importlib.abc
 import importlib.machinery
 import os
@@ -31,10 +32,30 @@ class StopEvent(threading.Event):
 
 
 def install_stop_handlers() -> StopEvent:
-    """A stop event set by SIGINT and SIGTERM (call from the main thread)."""
+    """A stop event set by SIGINT and SIGTERM (call from the main thread). SIGUSR1 prints where every
+    thread of the process is to stderr: for a process that does not stop (`kill -USR1 PID`).
+
+    The handler itself only writes a byte to a pipe; a watcher thread sets the event. A handler runs
+    in the main thread between two bytecodes, possibly while that thread holds the event's own lock
+    (inside `stop.wait()`), and setting the event there would wait for that lock forever."""
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     stop = StopEvent()
+    read_end, write_end = os.pipe()
+    os.set_blocking(write_end, False)
+
+    def watch() -> None:
+        os.read(read_end, 1)
+        stop.set()
+
+    def handle(*_: Any) -> None:
+        try:
+            os.write(write_end, b"!")
+        except BlockingIOError:  # the pipe is full of earlier signals: the watcher has its byte
+            pass
+
+    threading.Thread(target=watch, name="stop-signal", daemon=True).start()
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, handle)
     return stop
 
 

@@ -127,6 +127,8 @@ def stop_process(p: subprocess.Popen, timeout: float = 15.0) -> bool:
         p.wait(timeout)
         return True
     except subprocess.TimeoutExpired:
+        os.kill(p.pid, signal.SIGUSR1)  # its threads' stacks to its log: where it is stuck
+        time.sleep(2.0)
         os.killpg(p.pid, signal.SIGKILL)
         p.wait()
         return False

@@ -114,6 +114,27 @@ def test_record_refuses_a_directory(lab, tmp_path):
     assert "Traceback" not in r.stderr
 
 
+def test_a_recorder_asked_where_it_is_tells_and_goes_on_recording(lab, tmp_path):
+    """`kill -USR1 PID` prints every thread's stack (for a process that does not stop); the recording goes on
+    and Ctrl-C, even several in a row, still closes the file."""
+    import os
+    import signal
+
+    path, log = tmp_path / "usr1.rrd", tmp_path / "recorder.log"
+    recorder = lab.spawn("record", str(path), log=log)
+    wait_for_line(log, "recording to", recorder)
+    os.kill(recorder.pid, signal.SIGUSR1)
+    stacks = wait_for_line(log, "in run", recorder)  # the writer and fetcher threads' loops
+    assert "Thread 0x" in stacks and "recorder/logger.py" in stacks and recorder.poll() is None
+    assert lab.cli("invoke", "light-right", "switchOn").returncode == 0
+    for _ in range(3):
+        os.kill(recorder.pid, signal.SIGINT)
+    assert recorder.wait(30) == 0, log.read_text()
+    assert "recording saved" in log.read_text()
+    r = subprocess.run([RERUN, "rrd", "verify", str(path)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
 def test_up_with_record_writes_a_verified_recording(tmp_path):
     path = tmp_path / "up.rrd"
     lab = start_lab(tmp_path, "lights", http=False, things={"light-left"}, extra_args=("--record", str(path)))
