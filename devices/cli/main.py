@@ -222,20 +222,38 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     Ctrl-C stops it all."""
     if not outlive_parent and follows_its_starter():
         die_with_parent(os.getppid(), grace=STARTER_GONE_GRACE)
-    from devices.lab.readiness import (
-        PortTaken,
-        free_or_problem,
-        free_port_near,
-        serve_status,
-        view_free_or_problem,
-    )
-    from devices.lab.scenes import DEFAULT_SCENE, FLEET, scene_specs, scene_things
-    from mesh.messages.lab import LabStatus
-    from mesh.recorder.view import view_url as make_view_url
-    from tdgen.service import THING as TDGEN_THING
-    from tdgen.service import default_cache_dir
+    from devices.lab.scenes import DEFAULT_SCENE
 
     scene = scene or DEFAULT_SCENE
+    if not real and (real_calibration or real_auth or real_ca or real_insecure):
+        raise usage_exit("--real-auth, --real-ca, --real-insecure and --real-calibration go with --real DEVICE=URL")
+    specs, things = _scene_devices(scene, speed, samples, fleet, fleet_first, real, real_calibration,
+                                   commands.remote_access(real_auth, real_ca, real_insecure) if real else None,
+                                   virtual_things)
+    if direct and not join:
+        raise usage_exit("--direct is for --join ENDPOINT (this host's devices linked straight to that lab's router)")
+    if zenoh_endpoint:
+        settings = msgspec.structs.replace(settings, connect=(zenoh_endpoint,))
+    token = _prepare_secrets(settings, things, joining=bool(join))
+    if join:
+        _join_lab(settings, scene, specs, things, join, direct)
+        return
+    address = None if no_http else host_port(http)
+    view_address = None if no_view else host_port(view)
+    services, adapter, view_url = _lab_services(settings, address, view_address,
+                                                checked_auth(auth or (f"bearer:{token}" if token else None)),
+                                                record, tdgen_cache, tdgen_live)
+    url = None if address is None else f"http://{address[0]}:{address[1]}/"
+    _run_lab(settings, scene, [*services, *specs, *adapter], things, url, view_url, record)
+
+
+def _scene_devices(scene: str, speed: str, samples: int | None, fleet: int | None, fleet_first: int,
+                   real: tuple[str, ...], real_calibration: tuple[str, ...], real_access: Any,
+                   virtual_things: tuple[str, ...]) -> tuple[list[ProcessSpec], list[str]]:
+    """The processes of the scene's devices, of its guarded real devices and of the virtual Things, and
+    the names of the Things they serve (usage errors exit before anything starts)."""
+    from devices.lab.scenes import FLEET, scene_specs, scene_things
+
     if scene != FLEET and (fleet is not None or fleet_first != 1):
         raise usage_exit(f"--fleet and --fleet-first are for the fleet scene (`twinmesh up fleet --fleet N`), "
                          f"not for {scene!r}")
@@ -245,10 +263,7 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     except KeyError as e:
         raise usage_exit(str(e.args[0])) from None
     if real:
-        things += _guard_real(specs, scene, real, commands.remote_access(real_auth, real_ca, real_insecure),
-                              real_calibration)
-    elif real_calibration or real_auth or real_ca or real_insecure:
-        raise usage_exit("--real-auth, --real-ca, --real-insecure and --real-calibration go with --real DEVICE=URL")
+        things += _guard_real(specs, scene, real, real_access, real_calibration)
     if virtual_things:
         specs_v = _virtual_specs(virtual_things, commands.remote_access(None, None, False))
         taken = {v.name for v in specs_v} & set(things)
@@ -257,18 +272,18 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
                              f"({'a guarded real device' if sorted(taken)[0].endswith('-real') else 'a twin'})")
         specs.append(ProcessSpec("virtual", entries.virtual, {"specs": specs_v}, role="virtual"))
         things += [v.name for v in specs_v]
-    if direct and not join:
-        raise usage_exit("--direct is for --join ENDPOINT (this host's devices linked straight to that lab's router)")
-    if zenoh_endpoint:
-        settings = msgspec.structs.replace(settings, connect=(zenoh_endpoint,))
-    token = _prepare_secrets(settings, things, joining=bool(join))
-    if join:
-        _join_lab(settings, scene, specs, things, join, direct)
-        return
-    things = [TDGEN_THING, *things]
-    address = None if no_http else host_port(http)
-    view_address = None if no_view else host_port(view)
-    auth = checked_auth(auth or (f"bearer:{token}" if token else None))
+    return specs, things
+
+
+def _lab_services(settings: MeshSettings, address: tuple[str, int] | None, view_address: tuple[str, int] | None,
+                  auth: Any, record: str | None, tdgen_cache: str | None, tdgen_live: bool
+                  ) -> tuple[list[ProcessSpec], list[ProcessSpec], str | None]:
+    """The lab's own processes: those that start before the devices (router, tdgen, recorder, 3D view),
+    the HTTP adapter (after them), and the view's URL. A port that is taken is said before anything starts."""
+    from devices.lab.readiness import PortTaken, free_or_problem, free_port_near, view_free_or_problem
+    from mesh.recorder.view import view_url as make_view_url
+    from tdgen.service import default_cache_dir
+
     listen = router_listen(settings.listen, settings.connect)
     view_url, viewer = None, []
     try:
@@ -286,17 +301,25 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
                                                       "live": tdgen_live})
     http_adapter = [] if address is None else [ProcessSpec("adapter", entries.adapter, {"address": address, "auth": auth,
                                                                                  "view": view_url})]
-    # the router alone listens; every other process connects to it
-    peers = msgspec.structs.replace(settings, listen=())
-    sup = Supervisor(peers, [router, tdgen] + recorder + viewer + specs + http_adapter)
+    return [router, tdgen, *recorder, *viewer], http_adapter, view_url
+
+
+def _run_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], things: list[str], url: str | None,
+             view_url: str | None, record: str | None) -> None:
+    """Start every process, say `ready` once every Thing answers, serve the lab's status until Ctrl-C."""
+    from devices.lab.readiness import serve_status
+    from mesh.fabric.session import one_shot_session
+    from mesh.messages.lab import LabStatus
+    from tdgen.service import THING as TDGEN_THING
+
+    things = [TDGEN_THING, *things]
+    peers = msgspec.structs.replace(settings, listen=())  # the router alone listens; the others connect to it
+    sup = Supervisor(peers, specs)
     set_title(f"up {scene}")
     sup.start()
-    url = None if address is None else f"http://{address[0]}:{address[1]}/"
     _until_ready(sup, peers, things, _ready_timeout(things), http=url,
                  died="while the lab was starting (its log is above); stopped the lab", failed="; stopped the lab")
     status = LabStatus(ready=True, scene=scene, things=things, http=url, zenoh=", ".join(settings.endpoints))
-    from mesh.fabric.session import one_shot_session
-
     with one_shot_session(peers, service=True) as session:
         queryable = serve_status(session, peers, status)
         click.echo(f"twinmesh lab '{scene}' ready: {len(things)} Things on Zenoh {status.zenoh}"

@@ -246,45 +246,25 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
     """
     deadline = time.monotonic() + timeout
     missing: list[str] = list(things or ["the lab's status"])
-    answered: set[str] = set()  # Things that answered their TD once: not asked again
-    quiet: dict[str, float] = {}  # a live Thing whose TD did not come: not asked again until then
-    pause = 0.2  # s between rounds
-    robots: set[str] = set()  # Things whose TD links a twin: ready once tdgen generated their workspace
+    rounds = None if things is None else _ThingRounds(settings, things, http)
     said = time.monotonic()
     while True:
         dead = alive()
         if dead:
             raise LabDied(dead)
         try:
-            with open_client() as client, _presence(client, things is not None and follow) as present:
+            with open_client() as client, _presence(client, rounds is not None and follow) as present:
                 while True:
                     dead = alive()
                     if dead:
                         raise LabDied(dead)
-                    if things is None:
+                    if rounds is None:
                         status = _status(client, settings)
                         if status is not None and status.ready:
                             return status
                         missing = ["the lab's status"] if status is None else status.things
                     else:
-                        now, before = time.monotonic(), len(answered)
-                        if present is not None:
-                            alive_now = set(present.alive())
-                            asked = [t for t in things if t not in answered and t in alive_now
-                                     and quiet.get(t, 0.0) <= now][:TDS_PER_ROUND]
-                            silent = set(missing_tds(client, asked, alive=alive_now, robots=robots))
-                            answered.update(t for t in asked if t not in silent)
-                            quiet.update((t, now + QUIET_AFTER_SILENCE) for t in silent)  # left alone a while
-                        else:
-                            answered.update(answered_in_order(client, [t for t in things if t not in answered],
-                                                              settings.query_timeout, robots=robots))
-                        # asking in order and nothing new: ask less often (up to every 2 s)
-                        pause = 0.2 if present is not None or len(answered) > before else min(pause * 2, 2.0)
-                        missing = [t for t in things if t not in answered]
-                        if not missing and TDGEN_THING in things:
-                            missing = unready_workspaces(client, sorted(robots))
-                        if not missing and http is not None:
-                            missing = [f"{t} (over HTTP)" for t in missing_over_http(http, things)]
+                        missing = rounds.missing(client, present)
                         if not missing:
                             return None
                     if time.monotonic() >= deadline:
@@ -292,7 +272,7 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
                     if time.monotonic() - said >= PROGRESS_EVERY:
                         progress(f"still waiting for {_some(missing)}")
                         said = time.monotonic()
-                    time.sleep(pause)
+                    time.sleep(0.2 if rounds is None else rounds.pause)
         except LabDied:
             raise
         except Unavailable:  # no router yet
@@ -301,6 +281,39 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
             time.sleep(0.3)
             continue
         raise Unavailable(f"not ready within {timeout:g} s; waiting for {_some(missing)}")
+
+
+class _ThingRounds:
+    """What `wait_ready` still waits for among named Things, one round at a time. A Thing that answered
+    its TD once is not asked again; a live Thing whose TD did not come is left alone a while."""
+
+    def __init__(self, settings: MeshSettings, things: list[str], http: str | None):
+        self.settings, self.things, self.http = settings, things, http
+        self.answered: set[str] = set()
+        self.quiet: dict[str, float] = {}  # Thing -> when to ask it again
+        self.robots: set[str] = set()  # Things whose TD links a twin: ready once tdgen generated their workspace
+        self.pause = 0.2  # s until the next round
+
+    def missing(self, client, present: Directory | None) -> list[str]:
+        now, before = time.monotonic(), len(self.answered)
+        if present is not None:
+            alive_now = set(present.alive())
+            asked = [t for t in self.things if t not in self.answered and t in alive_now
+                     and self.quiet.get(t, 0.0) <= now][:TDS_PER_ROUND]
+            silent = set(missing_tds(client, asked, alive=alive_now, robots=self.robots))
+            self.answered.update(t for t in asked if t not in silent)
+            self.quiet.update((t, now + QUIET_AFTER_SILENCE) for t in silent)
+        else:
+            self.answered.update(answered_in_order(client, [t for t in self.things if t not in self.answered],
+                                                   self.settings.query_timeout, robots=self.robots))
+        # asking in order and nothing new: ask less often (up to every 2 s)
+        self.pause = 0.2 if present is not None or len(self.answered) > before else min(self.pause * 2, 2.0)
+        missing = [t for t in self.things if t not in self.answered]
+        if not missing and TDGEN_THING in self.things:
+            missing = unready_workspaces(client, sorted(self.robots))
+        if not missing and self.http is not None:
+            missing = [f"{t} (over HTTP)" for t in missing_over_http(self.http, self.things)]
+        return missing
 
 
 @contextmanager
