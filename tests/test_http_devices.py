@@ -73,14 +73,19 @@ def _probe(session, name: str, keys):
 def serve(endpoint: str, kind: str, name: str) -> None:
     """Process entry: one `light` or `probe` Thing; prints `exposed` once its liveliness token is out."""
     from devices.lab.supervisor import install_stop_handlers
-    from devices.things.lights import Light
+    from devices.things.lights import bind_light, light_td
+    from mesh.fabric.server import ExposedThing
     from mesh.fabric.session import open_session
     from mesh.fabric.settings import MeshSettings
 
     stop = install_stop_handlers()
     settings = MeshSettings(connect=(endpoint,))
     with open_session(settings) as session:
-        thing = Light(session, name, settings.keys).thing if kind == "light" else _probe(session, name, settings.keys)
+        if kind == "light":
+            thing = ExposedThing(session, light_td(name), name, settings.keys)
+            bind_light(thing)
+        else:
+            thing = _probe(session, name, settings.keys)
         with thing:
             print("exposed", flush=True)
             stop.wait()

@@ -20,7 +20,8 @@ from tdschema import assert_valid_td
 from devices.sim.pan_tilt import NOTHING, PanTilt
 from devices.sim.sensors import reading_of
 from devices.sim.world import World, static_box
-from devices.things.pan_tilt import expose_pan_tilt, pan_tilt_td
+from devices.things.binding import serve
+from devices.things.pan_tilt import bind_pan_tilt, pan_tilt_td
 from mesh.wot.problem import BadInput, Problem
 from mesh.wot.td import thing_id, zenoh_forms
 
@@ -251,15 +252,15 @@ def mesh():
 
 def test_on_the_mesh_move_to_answers_when_there_with_the_final_position_published(mesh, unit, world, names):
     from mesh.fabric.client import MeshClient
+    from mesh.fabric.server import ExposedThing
     from mesh.fabric.session import open_session
 
     add_box(world, names, "red-box", RED_AT, RED)
     positions: queue.Queue = queue.Queue()
     colours: queue.Queue = queue.Queue()
     with ExitStack() as stack:
-        thing, cleanup = expose_pan_tilt(stack.enter_context(open_session(mesh)), "pan-tilt-1", unit, mesh.keys)
-        stack.enter_context(thing)
-        stack.callback(cleanup)
+        thing = ExposedThing(stack.enter_context(open_session(mesh)), pan_tilt_td("pan-tilt-1"), "pan-tilt-1", mesh.keys)
+        serve(stack, thing, bind_pan_tilt(thing, unit))
         client = MeshClient(stack.enter_context(open_session(mesh)), mesh)
         deadline = time.monotonic() + 10
         while not client.is_alive("pan-tilt-1") and time.monotonic() < deadline:

@@ -30,11 +30,13 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
     `real`: the platform devices that guard their real devices, reached with `access` (`devices.things.guard`).
     """
     from devices.sim.layouts.lab import build_lab
+    from devices.things.binding import serve
     from devices.things.guard import guard_robot, serve_platform
-    from devices.things.lights import Light
-    from devices.things.pan_tilt import expose_pan_tilt
+    from devices.things.lights import bind_light, light_td
+    from devices.things.pan_tilt import bind_pan_tilt, pan_tilt_td
     from devices.things.robot import RobotThing
     from devices.things.world import WorldThing
+    from mesh.fabric.server import ExposedThing
     from mesh.fabric.session import open_session
 
     lab = build_lab(speed=speed)
@@ -43,12 +45,12 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
         serve_platform(stack, settings, lab.platform, list(real), access, stop)
         for name, unit in lab.pan_tilts.items():
             session = stack.enter_context(open_session(settings, thing=name))
-            thing, cleanup = expose_pan_tilt(session, name, unit, settings.keys)
-            stack.enter_context(thing)
-            stack.callback(cleanup)
+            thing = ExposedThing(session, pan_tilt_td(name), name, settings.keys)
+            serve(stack, thing, bind_pan_tilt(thing, unit))
         for name, lamp in lab.lamps.items():
             session = stack.enter_context(open_session(settings, thing=name))
-            stack.enter_context(Light(session, name, settings.keys, on_change=lamp.show).thing)
+            thing = ExposedThing(session, light_td(name), name, settings.keys)
+            serve(stack, thing, bind_light(thing, lamp.show))
         session = stack.enter_context(open_session(settings, thing=lab.ur10.name))
         robot = RobotThing(session, settings, lab.ur10, samples=samples)
         for device in real:

@@ -17,9 +17,9 @@ import threading
 from contextlib import ExitStack
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any, Callable
+from typing import Any
 
-from mesh.fabric.keys import Keys
+from devices.things.binding import Cleanup, nothing_to_undo, serve
 from mesh.fabric.server import ExposedThing
 from mesh.fabric.settings import MeshSettings
 from mesh.wot import units
@@ -30,7 +30,6 @@ log = logging.getLogger(__name__)
 KINDS = ("belt", "infrared", "color", "light", "climate")
 DEFAULT_FLEET = 100
 REFERENCE = {"belt": "conveyor-belt-1", "infrared": "infrared-sensor-1", "color": "color-sensor"}
-Cleanup = Callable[[], None]
 
 
 @dataclass(frozen=True)
@@ -120,44 +119,45 @@ def climate_td(name: str, description: str) -> ThingDescription:
     })
 
 
-def expose(session, device: FleetDevice, ticker, stations: dict[int, Any], keys: Keys
-           ) -> tuple[ExposedThing, Cleanup]:
-    """An ExposedThing (not exposed yet) serving `device`, and what undoes its bindings. A station's belt,
-    beam and colour sensor share one model (`stations`, by station number)."""
-    from devices.sim.stations import Climate, Station
+def bind_fleet_device(thing: ExposedThing, device: FleetDevice, ticker, stations: dict[int, Any]) -> Cleanup:
+    """`device`'s behaviour on `thing` (its TD is `device_td`'s). A station's belt, beam and colour sensor
+    share one model (`stations`, by station number)."""
+    from devices.sim.stations import Station
     from devices.things.platform import bind_belt, bind_color_sensor, bind_infrared
 
     kind, n = device.kind, device.station
     if kind == "light":
-        from devices.things.lights import Light
+        from devices.things.lights import bind_light
 
-        return Light(session, device.name, keys, description=_description(device)).thing, _nothing
-    thing = ExposedThing(session, device_td(device), device.name, keys)
+        return bind_light(thing)
     if kind == "climate":
-        def publish(temperature: float, humidity: float) -> None:
-            thing.emit_property_change("temperature", temperature)
-            thing.emit_property_change("humidity", humidity)
-
-        climate = Climate(device.name, ticker, publish, seed=n)
-
-        def write_interval(value: float) -> None:
-            climate.interval = value
-
-        thing.on_read("temperature", lambda: climate.temperature).on_read("humidity", lambda: climate.humidity)
-        thing.on_read("interval", lambda: climate.interval).on_write("interval", write_interval)
-        return thing, _nothing
+        return bind_climate(thing, device, ticker)
     station = stations.get(n)
     if station is None:
         station = stations[n] = Station(f"station-{n}", ticker, offset_mm=n * 37.0)
     if kind == "belt":
-        return thing, bind_belt(thing, station.belt)
+        return bind_belt(thing, station.belt)
     if kind == "infrared":
-        return thing, bind_infrared(thing, station.infrared)
-    return thing, bind_color_sensor(thing, station.color_sensor)
+        return bind_infrared(thing, station.infrared)
+    return bind_color_sensor(thing, station.color_sensor)
 
 
-def _nothing() -> None:
-    return None
+def bind_climate(thing: ExposedThing, device: FleetDevice, ticker) -> Cleanup:
+    """A climate sensor on `thing`: a reading every `interval` s, published to observers."""
+    from devices.sim.stations import Climate
+
+    def publish(temperature: float, humidity: float) -> None:
+        thing.emit_property_change("temperature", temperature)
+        thing.emit_property_change("humidity", humidity)
+
+    climate = Climate(device.name, ticker, publish, seed=device.station)
+
+    def write_interval(value: float) -> None:
+        climate.interval = value
+
+    thing.on_read("temperature", lambda: climate.temperature).on_read("humidity", lambda: climate.humidity)
+    thing.on_read("interval", lambda: climate.interval).on_write("interval", write_interval)
+    return nothing_to_undo
 
 
 def run(settings: MeshSettings, stop: threading.Event, start: int, end: int, first: int = 1) -> None:
@@ -173,9 +173,8 @@ def run(settings: MeshSettings, stop: threading.Event, start: int, end: int, fir
                 return
             device = FleetDevice(index, first)
             session = stack.enter_context(open_session(settings, thing=device.name))
-            thing, cleanup = expose(session, device, ticker, stations, settings.keys)
-            stack.enter_context(thing)
-            stack.callback(cleanup)
+            thing = ExposedThing(session, device_td(device), device.name, settings.keys)
+            serve(stack, thing, bind_fleet_device(thing, device, ticker, stations))
         stack.callback(ticker.stop)  # first on the way out: no reading is published to a closed Thing
         ticker.start()
         log.info("fleet: devices %s..%s on the mesh", FleetDevice(start, first).name, FleetDevice(end - 1, first).name)

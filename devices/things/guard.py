@@ -274,7 +274,8 @@ def serve_platform(stack: Any, settings: Any, platform: Any, real: list[RealDevi
     """Expose every device of `platform` on its own session (entered on `stack`); those in `real` guarded,
     each with its real device also on the mesh as `<slug>-real` (the recorder, the live view and the
     control page show real and twin side by side)."""
-    from devices.things.platform import PLATFORM_DEVICES, expose_device, twin_td
+    from devices.things.binding import serve
+    from devices.things.platform import PLATFORM_DEVICES, bind_device, platform_thing, twin_td
     from mesh.bridge.bridged import BridgedThing
     from mesh.fabric.session import open_session
 
@@ -284,8 +285,8 @@ def serve_platform(stack: Any, settings: Any, platform: Any, real: list[RealDevi
     for slug in PLATFORM_DEVICES:
         session = stack.enter_context(open_session(settings, thing=slug))
         device = guarded.get(slug)
-        thing, cleanup = expose_device(session, slug, platform, settings.keys,
-                                       real_td=None if device is None else device.td)
+        thing = platform_thing(session, slug, settings.keys, real_td=None if device is None else device.td)
+        cleanup = bind_device(thing, platform.devices[slug])
         if device is not None:
             remote = RemoteThing(device.td, client, device.url)
             twin = platform.devices[slug]
@@ -300,5 +301,4 @@ def serve_platform(stack: Any, settings: Any, platform: Any, real: list[RealDevi
             guard.install(set(twin_td(slug).actions))
             real_session = stack.enter_context(open_session(settings, thing=f"{slug}-real"))
             stack.enter_context(BridgedThing(real_session, f"{slug}-real", remote, device.td, settings.keys))
-        stack.enter_context(thing)
-        stack.callback(cleanup)
+        serve(stack, thing, cleanup)

@@ -8,7 +8,8 @@ from __future__ import annotations
 import threading
 from typing import Callable
 
-from mesh.fabric.keys import Keys
+from devices.things.binding import Cleanup, nothing_to_undo, serve
+from mesh.fabric.server import ExposedThing
 from mesh.wot import units
 from mesh.wot.td import ThingDescription, decode_td, thing_id
 
@@ -47,37 +48,31 @@ def light_td(name: str, description: str | None = None) -> ThingDescription:
     })
 
 
-class Light:
-    """One light's behaviour on an ExposedThing: state-backed properties plus actions and an event."""
+def bind_light(thing: ExposedThing, show: Callable[[bool, list[float]], None] | None = None) -> Cleanup:
+    """A light's behaviour on `thing` (its TD is `light_td`'s): state-backed properties, actions, an event.
+    `show(state, color)` after every change (the iot-lab's lamp shows it in the world)."""
+    def changed() -> None:
+        if show is not None:
+            show(thing.value("lightState"), thing.value("lightColor"))
 
-    def __init__(self, session, name: str, keys: Keys,
-                 on_change: Callable[[bool, list[float]], None] | None = None, description: str | None = None):
-        """`on_change(state, color)` after every change (the iot-lab's lamp shows it in the world)."""
-        from mesh.fabric.server import ExposedThing
+    def set_state(on: bool) -> None:
+        if thing.set_value("lightState", on):
+            thing.emit_event("stateChanged", on)
+            changed()
 
-        self._on_change = on_change
-        self.thing = ExposedThing(session, light_td(name, description), name, keys)
-        self.thing.state("lightState", False).state("lightColor", [1.0, 1.0, 1.0])
-        self.thing.on_write("lightState", self.set_state)
-        self.thing.on_write("lightColor", lambda rgb: self.set_color(dict(zip("rgb", rgb))))
-        self.thing.on_action("switchOn", lambda _: self.set_state(True))
-        self.thing.on_action("switchOff", lambda _: self.set_state(False))
-        self.thing.on_action("setColor", self.set_color)
-
-    def set_state(self, on: bool) -> None:
-        if self.thing.set_value("lightState", on):
-            self.thing.emit_event("stateChanged", on)
-            self._changed()
-
-    def set_color(self, rgb: dict) -> list[float]:
+    def set_color(rgb: dict) -> list[float]:
         color = [float(rgb[c]) for c in "rgb"]
-        if self.thing.set_value("lightColor", color):
-            self._changed()
+        if thing.set_value("lightColor", color):
+            changed()
         return color
 
-    def _changed(self) -> None:
-        if self._on_change is not None:
-            self._on_change(self.thing.value("lightState"), self.thing.value("lightColor"))
+    thing.state("lightState", False).state("lightColor", [1.0, 1.0, 1.0])
+    thing.on_write("lightState", set_state)
+    thing.on_write("lightColor", lambda rgb: set_color(dict(zip("rgb", rgb))))
+    thing.on_action("switchOn", lambda _: set_state(True))
+    thing.on_action("switchOff", lambda _: set_state(False))
+    thing.on_action("setColor", set_color)
+    return nothing_to_undo
 
 
 def run(settings, stop: threading.Event, names: tuple[str, ...] = LIGHTS) -> None:
@@ -89,5 +84,6 @@ def run(settings, stop: threading.Event, names: tuple[str, ...] = LIGHTS) -> Non
     with ExitStack() as stack:
         for name in names:
             session = stack.enter_context(open_session(settings, thing=name))
-            stack.enter_context(Light(session, name, settings.keys).thing)
+            thing = ExposedThing(session, light_td(name), name, settings.keys)
+            serve(stack, thing, bind_light(thing))
         stop.wait()

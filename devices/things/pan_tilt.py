@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from devices.sim.pan_tilt import MAX_PAN_SPEED, REACH, ColorSeen, PanTilt
-from mesh.fabric.keys import Keys
+from devices.things.binding import Cleanup
 from mesh.fabric.server import ExposedThing
 from mesh.fabric.state_publisher import StatePublisher
 from mesh.wot import units
@@ -23,7 +23,6 @@ from mesh.wot.td import ThingDescription, decode_td, thing_id
 TD = Path(__file__).parent / "tds" / "pan-tilt.json"
 MOVES = ("moveTo", "panTo", "tiltTo", "goHome", "stopMovement")  # answer when the motion is over
 POSITIONS = ("panPosition", "tiltPosition")
-Cleanup = Callable[[], None]
 
 DETECT_COLOR: dict[str, Any] = {
     "title": "Detect Color",
@@ -59,10 +58,8 @@ def pan_tilt_td(name: str) -> ThingDescription:
     return decode_td(td)
 
 
-def expose_pan_tilt(session, name: str, unit: PanTilt, keys: Keys | None = None
-                    ) -> tuple[ExposedThing, Cleanup]:
-    """The unit's Thing (not exposed yet: enter it) and a cleanup that stops its publishing."""
-    thing = ExposedThing(session, pan_tilt_td(name), name, keys)
+def bind_pan_tilt(thing: ExposedThing, unit: PanTilt) -> Cleanup:
+    """The unit's behaviour on `thing` (its TD is `pan_tilt_td`'s); the cleanup stops its publishing."""
     publisher = StatePublisher(thing, lambda: dict(zip(POSITIONS, unit.angles())))
 
     def moving(fn: Callable[[Any], None]) -> Callable[[Any], None]:
@@ -91,4 +88,4 @@ def expose_pan_tilt(session, name: str, unit: PanTilt, keys: Keys | None = None
             undo()
         publisher.close()
 
-    return thing, cleanup
+    return cleanup

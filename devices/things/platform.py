@@ -37,9 +37,9 @@ import msgspec
 
 from devices.sim.belt import Belt
 from devices.sim.dobot import Dobot
-from devices.sim.layouts.platform import IotPlatform
 from devices.sim.sensors import ColorSensor, InfraredSensor
 from devices.sim.uarm import Uarm
+from devices.things.binding import Cleanup, nothing_to_undo
 from mesh.fabric.keys import Keys
 from mesh.fabric.server import ExposedThing
 from mesh.wot.td import ThingDescription, decode_td, thing_id
@@ -50,8 +50,6 @@ PLATFORM_DEVICES = ("dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sen
 # the uArm tool point can be anywhere the firmware's motor limits allow (mm, rounded outwards;
 # tests/test_platform_tds.py samples the whole joint space against it)
 LOCATION_RANGE = {"x": (0, 370), "y": (-370, 370), "z": (-140, 190)}
-
-Cleanup = Callable[[], None]
 
 _NOTES = {
     "synchronous": "Every action answers when it is over (synchronous), also where the real TD says otherwise.",
@@ -101,35 +99,31 @@ def twin_td(slug: str) -> ThingDescription:
     return decode_td(twin_td_json(slug))
 
 
-def expose_device(session, slug: str, platform: IotPlatform, keys: Keys | None = None,
-                  real_td: dict[str, Any] | None = None) -> tuple[ExposedThing, Cleanup]:
-    """An ExposedThing (not exposed yet) serving `platform`'s device `slug`, and what undoes its bindings.
-    `real_td`: the real device's TD, for a twin that guards it (`devices.things.guard`): its TD also
-    offers the real device's actions it lacks (their handlers are the guard's)."""
+def platform_thing(session, slug: str, keys: Keys | None = None,
+                   real_td: dict[str, Any] | None = None) -> ExposedThing:
+    """The ExposedThing (not exposed yet) of the platform's device `slug`. `real_td`: the real device's
+    TD, for a twin that guards it (`devices.things.guard`): its TD also offers the real device's
+    actions it lacks (their handlers are the guard's)."""
     if real_td is None:
-        thing = ExposedThing(session, twin_td(slug), slug, keys)
-    else:
-        from devices.things.guard import with_real_actions
+        return ExposedThing(session, twin_td(slug), slug, keys)
+    from devices.things.guard import with_real_actions
 
-        thing = ExposedThing(session, with_real_actions(json.loads(twin_td_json(slug)), real_td), slug, keys)
-    device = platform.devices[slug]
+    return ExposedThing(session, with_real_actions(json.loads(twin_td_json(slug)), real_td), slug, keys)
+
+
+def bind_device(thing: ExposedThing, device: Belt | InfraredSensor | ColorSensor | Uarm | Dobot) -> Cleanup:
+    """The binding of whichever kind of platform device `device` is."""
     if isinstance(device, Belt):
-        cleanup = bind_belt(thing, device)
-    elif isinstance(device, InfraredSensor):
-        cleanup = bind_infrared(thing, device)
-    elif isinstance(device, ColorSensor):
-        cleanup = bind_color_sensor(thing, device)
-    elif isinstance(device, Uarm):
-        cleanup = bind_uarm(thing, device)
-    elif isinstance(device, Dobot):
-        cleanup = bind_dobot(thing, device)
-    else:  # pragma: no cover - a new device kind needs its binding here
-        raise TypeError(f"no binding for {type(device).__name__}")
-    return thing, cleanup
-
-
-def _nothing() -> None:
-    return None
+        return bind_belt(thing, device)
+    if isinstance(device, InfraredSensor):
+        return bind_infrared(thing, device)
+    if isinstance(device, ColorSensor):
+        return bind_color_sensor(thing, device)
+    if isinstance(device, Uarm):
+        return bind_uarm(thing, device)
+    if isinstance(device, Dobot):
+        return bind_dobot(thing, device)
+    raise TypeError(f"no binding for {type(device).__name__}")  # pragma: no cover - a new device kind
 
 
 def _output_const(thing: ExposedThing, action: str) -> Any:
@@ -180,7 +174,7 @@ def bind_belt(thing: ExposedThing, belt: BeltLike) -> Cleanup:
     thing.on_action("startBeltForward", act(belt.start_forward, "startBeltForward"))
     thing.on_action("startBeltBackward", act(belt.start_backward, "startBeltBackward"))
     thing.on_action("stopBelt", act(belt.stop, "stopBelt"))  # harmless when already stopped
-    return _nothing
+    return nothing_to_undo
 
 
 def bind_infrared(thing: ExposedThing, sensor: BeamLike) -> Cleanup:
@@ -196,7 +190,7 @@ def bind_color_sensor(thing: ExposedThing, sensor: ColourLike) -> Cleanup:
     thing.on_read("color", lambda: sensor.color)
     thing.on_read("lux", lambda: sensor.lux)
     thing.on_read("temperature", lambda: sensor.temperature)
-    return _nothing
+    return nothing_to_undo
 
 
 def bind_uarm(thing: ExposedThing, uarm: Uarm) -> Cleanup:
@@ -227,7 +221,7 @@ def bind_uarm(thing: ExposedThing, uarm: Uarm) -> Cleanup:
     thing.on_action("turnLeft", moving(lambda _: uarm.turn_left()))
     thing.on_action("turnRight", moving(lambda _: (uarm.turn_right(), None)[1]))  # no output in the real TD
     thing.on_action("reset", lambda _: None)
-    return _nothing
+    return nothing_to_undo
 
 
 def bind_dobot(thing: ExposedThing, dobot: Dobot) -> Cleanup:
@@ -235,4 +229,4 @@ def bind_dobot(thing: ExposedThing, dobot: Dobot) -> Cleanup:
     thing.on_action("getCube", lambda _: (dobot.get_cube(), None)[1])  # no output in the real TD
     thing.on_action("returnCube", lambda _: (dobot.return_cube(), None)[1])
     thing.on_action("calibrateDevice", lambda _: dobot.calibrate())
-    return _nothing
+    return nothing_to_undo
