@@ -9,8 +9,9 @@ import msgspec
 import numpy as np
 import pytest
 
+from devices.planning.moves import MovePlan
 from devices.planning.paths import STEP_MM, PathChecker
-from devices.sim.robot import Base, MovePlan, RobotTwin, workspace_from_csv
+from devices.sim.robot import Base, RobotTwin, workspace_from_csv
 from devices.sim.world import World
 from mesh.wot.problem import Problem
 from tdgen.generate import generate

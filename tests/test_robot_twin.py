@@ -13,7 +13,8 @@ from labs import free_port
 from scipy.spatial.transform import Rotation
 from tdschema import assert_valid_td
 
-from devices.sim.robot import Base, RobotTwin, TdFrame, workspace_from_csv
+from devices.planning.moves import TdFrame
+from devices.sim.robot import Base, RobotTwin, workspace_from_csv
 from devices.sim.world import World
 from devices.things.robot import RobotThing, provisional_td
 from mesh.fabric.client import MeshClient
@@ -59,7 +60,7 @@ def safe_targets(workspace, twin: RobotTwin, n: int, seed: int = 0) -> np.ndarra
     free = workspace.positions[~workspace.collision]
     out = []
     for p in free[np.random.default_rng(seed).permutation(len(free))]:
-        c = workspace.check(p, twin.k, twin.radius_mm, 0.5)
+        c = workspace.check(p, twin.planner.k, twin.planner.radius_mm, 0.5)
         if c.ok and c.collision_probability == 0 and c.margin_mm > 50:
             out.append(p)
             if len(out) == n:

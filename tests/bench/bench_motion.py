@@ -79,7 +79,7 @@ class Tally:
 
 def old_move(twin: RobotTwin, workspace: Workspace, target: np.ndarray) -> tuple[str, np.ndarray | None]:
     """The first release's decision: hull, probability <= 0.5, a collision-free IK configuration; straight."""
-    check = workspace.check(target, twin.k, twin.radius_mm, 0.5)
+    check = workspace.check(target, twin.planner.k, twin.planner.radius_mm, 0.5)
     if not check.inside:
         return "outside-workspace", None
     if not check.ok:
@@ -92,7 +92,7 @@ def old_move(twin: RobotTwin, workspace: Workspace, target: np.ndarray) -> tuple
             if attempt == 0:
                 return "unreachable", None
             continue
-        if not twin._collides(result.q):
+        if not twin.planner.collides(result.q):
             best = result.q
             break
     if best is None:
