@@ -193,10 +193,11 @@ class LiveSamples:
                                   [found[int(i)] for i in rows])
 
     def prepare(self) -> None:
-        """Load the kept worlds and ask what collides in the base's first samples now, between updates,
-        so that the first update does not wait for them (some 50 ms)."""
+        """Load the kept worlds, hash the samples and ask what collides in the base's first samples now,
+        between updates, so that the first update does not wait for them (some 50 ms)."""
         from tdgen.generate import PAIR_SAMPLES
 
+        self.base_flags.samples_sha  # noqa: B018 - hashed once here, not in the first update's digest
         for row in np.flatnonzero(self.base_samples.collision)[:PAIR_SAMPLES]:
             self.worlds.base_pairs(int(row), self.base_samples.q[row])
         self.worlds.at_rest()

@@ -285,7 +285,9 @@ class RobotThing:
             return now.with_collision(made.collision), made
         workspace = workspace_from_csv(points)
         try:
-            return workspace, points_csv.Flags(points)
+            flags = points_csv.Flags(points)
+            flags.samples_sha  # noqa: B018 - hashed now, not when the next scene change's digest comes
+            return workspace, flags
         except ValueError:  # a points file written elsewhere, in another layout: read, never re-flagged
             return workspace, None
 
