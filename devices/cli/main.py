@@ -222,14 +222,22 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     Ctrl-C stops it all."""
     if not outlive_parent and follows_its_starter():
         die_with_parent(os.getppid(), grace=STARTER_GONE_GRACE)
-    from devices.lab.scenes import DEFAULT_SCENE
+    from devices.lab.scenes import DEFAULT_SCENE, FLEET, scene_specs, scene_things
 
     scene = scene or DEFAULT_SCENE
+    if scene != FLEET and (fleet is not None or fleet_first != 1):
+        raise usage_exit(f"--fleet and --fleet-first are for the fleet scene (`twinmesh up fleet --fleet N`), "
+                         f"not for {scene!r}")
     if not real and (real_calibration or real_auth or real_ca or real_insecure):
         raise usage_exit("--real-auth, --real-ca, --real-insecure and --real-calibration go with --real DEVICE=URL")
-    specs, things = _scene_devices(scene, speed, samples, fleet, fleet_first, real, real_calibration,
-                                   commands.remote_access(real_auth, real_ca, real_insecure) if real else None,
-                                   virtual_things)
+    try:
+        specs = scene_specs(scene, speed=_speed(speed), samples=samples, fleet=fleet, fleet_first=fleet_first)
+        things = scene_things(scene, fleet=fleet, fleet_first=fleet_first)
+    except KeyError as e:
+        raise usage_exit(str(e.args[0])) from None
+    things += _added_devices(scene, specs, things, real, real_calibration,
+                             commands.remote_access(real_auth, real_ca, real_insecure) if real else None,
+                             virtual_things)
     if direct and not join:
         raise usage_exit("--direct is for --join ENDPOINT (this host's devices linked straight to that lab's router)")
     if zenoh_endpoint:
@@ -247,32 +255,22 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     _run_lab(settings, scene, [*services, *specs, *adapter], things, url, view_url, record)
 
 
-def _scene_devices(scene: str, speed: str, samples: int | None, fleet: int | None, fleet_first: int,
-                   real: tuple[str, ...], real_calibration: tuple[str, ...], real_access: Any,
-                   virtual_things: tuple[str, ...]) -> tuple[list[ProcessSpec], list[str]]:
-    """The processes of the scene's devices, of its guarded real devices and of the virtual Things, and
-    the names of the Things they serve (usage errors exit before anything starts)."""
-    from devices.lab.scenes import FLEET, scene_specs, scene_things
-
-    if scene != FLEET and (fleet is not None or fleet_first != 1):
-        raise usage_exit(f"--fleet and --fleet-first are for the fleet scene (`twinmesh up fleet --fleet N`), "
-                         f"not for {scene!r}")
-    try:
-        specs = scene_specs(scene, speed=_speed(speed), samples=samples, fleet=fleet, fleet_first=fleet_first)
-        things = scene_things(scene, fleet=fleet, fleet_first=fleet_first)
-    except KeyError as e:
-        raise usage_exit(str(e.args[0])) from None
+def _added_devices(scene: str, specs: list[ProcessSpec], things: list[str], real: tuple[str, ...],
+                   real_calibration: tuple[str, ...], real_access: Any, virtual_things: tuple[str, ...]) -> list[str]:
+    """The processes of the guarded real devices and of the virtual Things, added to the scene's `specs`;
+    returns the names of the Things they add (usage errors exit before anything starts)."""
+    added: list[str] = []
     if real:
-        things += _guard_real(specs, scene, real, real_access, real_calibration)
+        added += _guard_real(specs, scene, real, real_access, real_calibration)
     if virtual_things:
         specs_v = _virtual_specs(virtual_things, commands.remote_access(None, None, False))
-        taken = {v.name for v in specs_v} & set(things)
+        taken = {v.name for v in specs_v} & {*things, *added}
         if taken:
             raise usage_exit(f"--thing {sorted(taken)[0]}: the scene {scene!r} already has a Thing of that name "
                              f"({'a guarded real device' if sorted(taken)[0].endswith('-real') else 'a twin'})")
         specs.append(ProcessSpec("virtual", entries.virtual, {"specs": specs_v}, role="virtual"))
-        things += [v.name for v in specs_v]
-    return specs, things
+        added += [v.name for v in specs_v]
+    return added
 
 
 def _lab_services(settings: MeshSettings, address: tuple[str, int] | None, view_address: tuple[str, int] | None,
