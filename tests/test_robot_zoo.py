@@ -1,5 +1,6 @@
-"""Arms nobody here picked: the `example-robot-data` package's robots and an arm of KIT's ARMAR-4 humanoid
-(the `armar` package), as a researcher would drop them in.
+"""Arms nobody here picked: the `example-robot-data` package's robots, an arm of KIT's ARMAR-4 humanoid
+(the `armar` package) and one of IIT's iCub (`icub-models`, a Gazebo model set whose 213 links are more
+than a pybullet body holds), as a researcher would drop them in.
 
 For each arm of the zoo (6- and 7-DoF arms, a 5-DoF arm with a jaw, grippers with mimic joints,
 unlimited joints, two-arm robots, mobile manipulators, an arm on a quadruped): the chain chosen
@@ -45,10 +46,21 @@ def _data(distribution: str, folder: str) -> Path | None:
     return Path(str(dist.locate_file(folder)))
 
 
+def _icub() -> Path | None:
+    """The iCub models' folder (a Gazebo model set: one folder per robot, `model.urdf` and `model.config`),
+    installed under the environment's `share/iCub`, or None."""
+    try:
+        from icub_models import get_models_path
+    except ImportError:
+        return None
+    return get_models_path()
+
+
 SHARE = _data("example-robot-data", "cmeel.prefix/share/example-robot-data")
 ARMAR = _data("armar", "armar/description/urdf")  # KIT's ARMAR humanoids: a second collection (CC BY-NC 4.0)
-if SHARE is None or ARMAR is None:
-    missing = "example-robot-data" if SHARE is None else "armar"
+ICUB = _icub()  # IIT's iCub humanoids, a Gazebo model set (CC BY-SA 4.0)
+if SHARE is None or ARMAR is None or ICUB is None:
+    missing = "example-robot-data" if SHARE is None else "armar" if ARMAR is None else "icub-models"
     if os.environ.get("CI") == "true":
         pytest.fail(f"{missing} is not installed (a test extra: pip install -e '.[test]')", pytrace=False)
     pytest.skip(f"{missing} is not installed (pip install -e '.[test]')", allow_module_level=True)
@@ -76,7 +88,13 @@ ZOO = {
     # from the armar package (an absolute path: ROBOTS / it is itself); zero-radius spheres hold some links' places
     "armar4-arm": (ARMAR / "armar4_fixed_hands_and_legs.urdf", {"base_link": "torso_pitch", "ee": "arm_wri2_r0"},
                    ("torso_pitch", "arm_wri2_r0", 8), "a humanoid's 8-DoF arm from its torso (KIT's ARMAR-4)"),
+    # a Gazebo model set (icub-models): 213 links, 150 of them sensor and skin frames pybullet cannot hold;
+    # its chest and upper arm meshes overlap at rest and in most poses, by design (tdgen names the pair)
+    "icub-arm": (ICUB / "iCubGazeboV2_5/model.urdf",
+                 {"base_link": "chest", "ee": "r_hand", "allowed_collisions": [("chest", "r_upper_arm")]},
+                 ("chest", "r_hand", 7), "a humanoid's 7-DoF arm, 213 links (IIT's iCub, Gazebo models)"),
 }
+HANGING = {"talos-arm", "icub-arm"}  # humanoid arms: their base is a shoulder or a chest, not a mounting flange
 
 
 @pytest.fixture(scope="module", params=sorted(ZOO))
@@ -98,7 +116,7 @@ def test_each_arm_gets_its_chain_a_watertight_workspace_and_a_td_that_names_the_
     assert (robot.base_link, robot.ee_link, len(robot.joints)) == (base, tip, n), robot.describe_chain()
     for joint in options.get("fixed", {}):
         assert joint not in [j.name for j in robot.joints] and joint in robot.held
-    hangs = name == "talos-arm"  # a humanoid's arm: its root is the shoulder, not a mounting flange
+    hangs = name in HANGING
     if hangs:
         with pytest.raises(WorkspaceError, match="--no-surface"):
             generate(robot, None, 300, seed=0, out_dir=tmp_path / "on-a-floor", workers=1)
@@ -174,14 +192,15 @@ BATCH = 4  # robot processes on the mesh at once (each its own pybullet world)
 
 def _robot_args(name: str) -> list[str]:
     """`twinmesh robot` options for a zoo arm: the same choices as the Python API (the PR2's meshes found
-    through --package-path, not pybullet's search; Talos' arm hangs from its shoulder)."""
+    through --package-path, not pybullet's search; Talos' and iCub's arms hang from a shoulder or a chest)."""
     _, options, _, _ = ZOO[name]
     args = ["--ee", options["ee"]] if "ee" in options else []
     args += ["--base-link", options["base_link"]] if "base_link" in options else []
     args += [f"--fix-joint={j}={v:g}" for j, v in options.get("fixed", {}).items()]
+    args += [f"--allow-collision={a}/{b}" for a, b in options.get("allowed_collisions", ())]
     if name == "pr2":
         args += ["--package-path", f"example-robot-data={SHARE}"]
-    if name == "talos-arm":
+    if name in HANGING:
         args.append("--no-surface")
     return args
 

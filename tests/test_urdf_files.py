@@ -314,3 +314,36 @@ def test_a_zero_radius_sphere_leaves_the_arm_usable_and_the_fast_model_exact(tmp
         assert np.mean(verdict == FREE) > 0.3, "the arm's free configurations need no exact test"
     finally:
         world.close()
+
+
+def _with_frames(tmp_path: Path, frames: int, geometry: bool, name: str) -> Path:
+    """The test arm with `frames` more links hanging by fixed joints from l2 (a humanoid's skin and sensor
+    frames: bare, or each with a small box)."""
+    shape = '<collision><geometry><box size="0.01 0.01 0.01"/></geometry></collision>' if geometry else ""
+    more = "".join(f'<link name="skin_{i}">{shape}</link><joint name="skin_{i}_mount" type="fixed">'
+                   f'<parent link="l2"/><child link="skin_{i}"/><origin xyz="0.03 0 {i * 0.001:.3f}"/></joint>'
+                   for i in range(frames))
+    path = tmp_path / name
+    path.write_text(arm_urdf(tmp_path).read_text().replace("</robot>", more + "</robot>"))
+    return path
+
+
+def test_more_links_than_pybullet_holds_lose_their_bare_frames_or_are_refused_with_both_counts(tmp_path):
+    """A pybullet body holds 128 links; beyond, every query of its state fails (IIT's iCub has 213, 150 of
+    them frames without geometry: "GetBasePositionAndOrientation failed" and a traceback)."""
+    from tdgen.robot.collision import CollisionWorld
+    from tdgen.robot.surroundings import default_scene
+
+    robot = Robot.load(_with_frames(tmp_path, 200, geometry=False, name="skin.urdf"))
+    assert robot.load_path != robot.urdf_path
+    world = CollisionWorld(robot, default_scene())
+    try:
+        q = np.zeros((4, len(robot.joints)))
+        assert world.colliding(q).shape == (4,) and not world.colliding(q[:1])[0]
+    finally:
+        world.close()
+    frames = Robot.load(_with_frames(tmp_path, 200, geometry=False, name="skin_tip.urdf"), ee="skin_3")
+    assert frames.ee_link == "skin_3" and "skin_3" in frames.load_path.read_text()  # a chosen tip stays
+    with pytest.raises(RobotError, match=r"solid\.urdf: 207 links, and pybullet holds at most 128 in one body "
+                                         r"\(none is a frame without geometry that could be dropped\); cut"):
+        Robot.load(_with_frames(tmp_path, 200, geometry=True, name="solid.urdf"))

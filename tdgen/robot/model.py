@@ -158,7 +158,8 @@ class Robot:
         if not main:
             raise RobotError(f"{source}: no actuated joint between the base link {base!r} and {ee!r} "
                              "(pick the arm's links with --base-link and --ee)")
-        load_path, borrowed = loadable_urdf(path, packages, shown=source)
+        keep = {root, base, ee, *(j.child for j in chain), *(j.parent for j in chain), *(n for p in allowed for n in p)}
+        load_path, borrowed = loadable_urdf(path, packages, shown=source, keep=keep)
         indices, link_indices = _pybullet_indices(load_path)
         joints = [Joint(j.name, j.type, indices[j.name], *_limits(j), _velocity(j)) for j in main]
         return cls(path, name, joints, passive_names, ee, link_indices[ee], passive, ujoints, indices,

@@ -50,13 +50,51 @@ def visual_collisions(text: str) -> tuple[str, list[str]]:
     return ET.tostring(root, encoding="unicode"), borrowed
 
 
-def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None, shown: Path | None = None
-                  ) -> tuple[Path, list[str]]:
+PYBULLET_MAX_LINKS = 128  # links one pybullet body can hold: beyond, its state queries fail (bullet3 #4621)
+
+
+def without_bare_leaves(text: str, keep: set[str]) -> tuple[str, int, int]:
+    """The URDF without the links that have no geometry and hang by a fixed joint with nothing below them
+    (sensor, skin and DH frames: iCub has 150 of them), except `keep`; how many links it had, and how
+    many went. They change no collision and no kinematics of the kept links."""
+    root = ET.fromstring(text)
+    links = {link.get("name", ""): link for link in root.findall("link")}
+    below: dict[str, list[str]] = {name: [] for name in links}
+    hung: dict[str, ET.Element] = {}  # child link -> its joint
+    for joint in root.findall("joint"):
+        parent, child = joint.find("parent"), joint.find("child")
+        if parent is not None and child is not None:
+            below.setdefault(parent.get("link", ""), []).append(child.get("link", ""))
+            hung[child.get("link", "")] = joint
+    gone: set[str] = set()
+    changed = True
+    while changed:
+        changed = False
+        for name, link in links.items():
+            hanger = hung.get(name)
+            if (name in gone or name in keep or hanger is None or hanger.get("type") != "fixed"
+                    or link.find("visual") is not None or link.find("collision") is not None
+                    or not all(c in gone for c in below.get(name, []))):
+                continue
+            gone.add(name)
+            changed = True
+    if not gone:
+        return text, len(links), 0
+    for name in gone:
+        root.remove(links[name])
+        root.remove(hung[name])
+    return ET.tostring(root, encoding="unicode"), len(links), len(gone)
+
+
+def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None, shown: Path | None = None,
+                  keep: set[str] | None = None) -> tuple[Path, list[str]]:
     """The file pybullet should load for `path`, and the links whose visual geometry stands in for the
     collision geometry they lack (`visual_collisions`): `path` itself, or (where it has `package://` or
     `file://` meshes, undeclared XML prefixes or borrowed collisions) a copy with every mesh made absolute
-    as ROS resolves it, the prefixes declared and the collisions added. A mesh that cannot be found is a
-    RobotError naming it and where it was looked for; messages name `shown` (the user's file) if given."""
+    as ROS resolves it, the prefixes declared and the collisions added. A URDF of more links than a
+    pybullet body holds loses its bare leaf frames (`without_bare_leaves`, never those in `keep`: the
+    arm's chain), or is refused naming both counts. A mesh that cannot be found is a RobotError naming it
+    and where it was looked for; messages name `shown` (the user's file) if given."""
     name = shown or path
     text = path.read_text(encoding="utf-8", errors="replace")
     resolved, missing = with_absolute_meshes(text, path.parent, packages)
@@ -66,11 +104,20 @@ def loadable_urdf(path: Path, packages: Mapping[str, Path] | None = None, shown:
                          "ROS_PACKAGE_PATH or AMENT_PREFIX_PATH")
     try:
         complete, borrowed = visual_collisions(declared(resolved))
+        count = len(ET.fromstring(complete).findall("link"))
+        pruned = 0
+        if count > PYBULLET_MAX_LINKS:
+            complete, count, pruned = without_bare_leaves(complete, keep or set())
     except ET.ParseError as e:
         raise RobotError(f"{name}: not a URDF pybullet can read ({e})") from None
-    if not borrowed and "package://" not in text and "file://" not in text and declared(text) == text:
+    if count - pruned > PYBULLET_MAX_LINKS:
+        left = (f"{count - pruned} are left after dropping {pruned} frames without geometry or anything below them"
+                if pruned else "none is a frame without geometry that could be dropped")
+        raise RobotError(f"{name}: {count} links, and pybullet holds at most {PYBULLET_MAX_LINKS} in one body "
+                         f"({left}); cut the URDF down to the arm and what it can touch")
+    if not pruned and not borrowed and "package://" not in text and "file://" not in text and declared(text) == text:
         return path, []
-    return _resolved_copy(path.name, complete if borrowed else declared(resolved)), borrowed
+    return _resolved_copy(path.name, complete if borrowed or pruned else declared(resolved)), borrowed
 
 
 def _resolved_copy(name: str, text: str) -> Path:
