@@ -37,7 +37,7 @@ from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, TypeVar
 
 import msgspec
 
@@ -57,6 +57,7 @@ if TYPE_CHECKING:
     from tdgen.robot.model import Robot
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 THING = "tdgen"
 ARTEFACTS = {  # file suffix -> content type; the generated file is named like the suffix
@@ -244,12 +245,13 @@ class TdgenService:
                 except Problem:  # restarted under another name for its twin: ask its TD
                     twin = None
             if twin is None:
-                td = self._fetch_td(thing)
+                td = self._patiently(lambda: self.client.td(thing))
                 link = next((link for link in td.links if link.rel == TWIN_REL), None)
                 if link is None:
                     return
                 name = link.href.rsplit("/", 1)[-1]
-                twin = msgspec.json.decode(self.client.file(thing, name).payload, type=TwinDescription)
+                payload = self._patiently(lambda: self.client.file(thing, name).payload)
+                twin = msgspec.json.decode(payload, type=TwinDescription)
                 self._twin_files[thing] = name
         except (Problem, msgspec.DecodeError, msgspec.ValidationError) as e:
             log.warning("%s: cannot read its twin: %s", thing, e)
@@ -259,13 +261,15 @@ class TdgenService:
             return
         self.request(twin)
 
-    def _fetch_td(self, thing: str, attempts: int = 8) -> ThingDescription:
-        """A peer that just joined may not be reachable by queries yet, and a router taking thousands of
-        sessions may answer late (a TD timed out while 10,000 devices joined): retry with backoff."""
+    def _patiently(self, ask: Callable[[], T], attempts: int = 8) -> T:
+        """`ask()`, again with backoff while the Thing is unreachable or silent. A peer that just joined may
+        not be reachable by queries yet; a router taking thousands of sessions may answer late (a TD timed
+        out while 10,000 devices joined); a robot that just started may not answer for seconds while it
+        compiles its loops on a fresh machine (its twin file timed out, and it never got its TD)."""
         delay = 0.05
         for attempt in range(attempts):
             try:
-                return self.client.td(thing)
+                return ask()
             except (Unavailable, TimedOut):
                 if attempt == attempts - 1:
                     raise

@@ -335,6 +335,34 @@ def test_a_new_obstacle_regenerates_a_smaller_workspace_and_td_observers_see_it(
         assert thing.thing.td == second or thing.thing.td.version == second.version
 
 
+def test_a_robot_slow_to_give_its_twin_at_first_still_gets_its_td(mesh, twin, tmp_path):
+    """A robot that just started may not answer for seconds (on a fresh machine it compiles its loops): the
+    service asked for its twin file once, timed out and gave up, and the robot never got a TD (a zoo
+    robot in a fresh clone's run waited for it until the test's time was up)."""
+    patient = msgspec.structs.replace(mesh, query_timeout=1.0)
+    tds: queue.Queue = queue.Queue()
+    with ExitStack() as stack:
+        observer = stack.enter_context(open_session(mesh))
+        observer.declare_subscriber(mesh.keys.td("ur10"), lambda s: tds.put(decode_td(s.payload.to_bytes())))
+        thing = RobotThing(stack.enter_context(open_session(mesh)), mesh, twin, samples=SAMPLES)
+        source, media = thing.thing._files["twin.json"]
+        asked: list[float] = []
+
+        def slow_at_first() -> bytes:
+            asked.append(time.monotonic())
+            if len(asked) == 1:
+                time.sleep(1.5)  # longer than the service's query timeout
+            return source()
+
+        thing.thing._files["twin.json"] = (slow_at_first, media)
+        stack.enter_context(thing)
+        stack.enter_context(TdgenService(stack.enter_context(open_session(patient)), patient, tmp_path / "cache", 1))
+        generated = _wait(tds, lambda td: td.version == {"instance": "0"} and any(
+            link.rel == WORKSPACE for link in td.links))
+        assert len(asked) >= 2, "the service never asked again"
+        assert generated.version == {"instance": "0"}
+
+
 def test_a_failed_generation_is_reported_and_explains_the_refusals(mesh, twin, tmp_path):
     with ExitStack() as stack:
         service = stack.enter_context(TdgenService(stack.enter_context(open_session(mesh)), mesh, tmp_path, 1))
