@@ -38,7 +38,7 @@ def install_stop_handlers() -> StopEvent:
     The handler itself only writes a byte to a pipe; a watcher thread sets the event. A handler runs
     in the main thread between two bytecodes, possibly while that thread holds the event's own lock
     (inside `stop.wait()`), and setting the event there would wait for that lock forever."""
-    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    signal.signal(signal.SIGUSR1, _dump_threads)
     stop = StopEvent()
     read_end, write_end = os.pipe()
     os.set_blocking(write_end, False)
@@ -57,6 +57,13 @@ def install_stop_handlers() -> StopEvent:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, handle)
     return stop
+
+
+def _dump_threads(*_: Any) -> None:
+    """Every thread's stack to stderr. From a Python-level handler, with the GIL held: faulthandler's own
+    handler reads the other threads' frames while they run, and a dump in a fresh clone's test run
+    stopped half-way through a thread that was busy in Python code."""
+    faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
 
 
 def set_title(role: str) -> None:
