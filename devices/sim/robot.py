@@ -291,17 +291,14 @@ class RobotTwin:
         """Move the tip to `target_mm` (TD frame) in `orientation` (roll/pitch/yaw in deg, or a quaternion
         x, y, z, w; base frame) along a collision-free path; refused (nothing moves) unless one is found."""
         with self._move_lock:
-            plan = self._plan_pose(target_mm, orientation)
+            plan = self.plan_pose(target_mm, orientation)
             self._play(plan)
         return plan
 
     def plan_pose(self, target_mm: Vec, orientation: Any) -> MovePlan:
         """The answer `move_to_pose` would give, from where the robot is now, without moving (a dry run)."""
         with self._move_lock:
-            return self._plan_pose(target_mm, orientation)
-
-    def _plan_pose(self, target_mm: Vec, orientation: Any) -> MovePlan:
-        return self.planner.plan_pose(self.arm.q, target_mm, orientation)
+            return self.planner.plan_pose(self.arm.q, target_mm, orientation)
 
     def plan_move(self, joints: Mapping[str, float] | Vec | None = None,
                   target_mm: Vec | None = None) -> MovePlan:
