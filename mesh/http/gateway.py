@@ -8,15 +8,20 @@ limiter: an action may block for minutes while a robot moves).
 
 Caching, and why it is safe: the last published value of an observable property is served
 without a round trip while it is fresh, i.e. received while we were subscribed (an observable
-property publishes every change), younger than `max_age` (a safety net against lost samples) and
-not older than the start of the last write/invoke through the adapter (a device publishes a change
-before it replies, so anything received after the mutation started is at least as new as it).
-A read that raced with a publication does not overwrite the published value.
+property publishes every change) and younger than `max_age` (a safety net against lost samples).
+A write or invoke through the adapter empties the Thing's cache when it answers: what was published
+during it may be a motion's half-way state, and the samples of the final one may still be on their way
+to the loop (the drain thread is slower than the reply's thread on a busy machine: a read right after
+a robot's move was once served a position 684 mm short). Until every sample Zenoh had received by
+the answer has reached the loop (a local barrier sample behind them, `_settle`), nothing is cached:
+reads go to the Thing, whose answer is the truth. A read that raced with a publication does not
+overwrite the published value.
 """
 from __future__ import annotations
 
 import asyncio
 import functools
+import itertools
 import logging
 import time
 from contextlib import AbstractContextManager, contextmanager
@@ -69,6 +74,7 @@ class ThingEntry:
     rendered: dict[str, bytes] = field(default_factory=dict)  # HTTP TD JSON by base URL
     dropped: dict[str, int] = field(default_factory=dict)  # publications refused per affordance (forged, broken)
     refetching: bool = False  # a TD change was announced: readers wait for the Thing's own TD
+    settling: set[int] = field(default_factory=set)  # barriers not yet through: cache nothing meanwhile
 
 
 class Registry:
@@ -94,6 +100,8 @@ class Registry:
         self._limiter: anyio.CapacityLimiter | None = None
         self._deadline: asyncio.Future[None] | None = None  # resolved `shutdown_grace` after shutdown began
         self._declared: list[Any] = []
+        self._barrier_key = f"{self.keys.prefix}/_adapter/{id(self):x}/barrier"  # never leaves this session
+        self._barriers = itertools.count()
 
     # --- lifecycle ---------------------------------------------------------------------------
     async def start(self) -> None:
@@ -155,7 +163,12 @@ class Registry:
     def _samples(self, samples: Sequence[Any]) -> None:
         published = []
         for sample in samples:
-            parsed = self.keys.parse(str(sample.key_expr))
+            key = str(sample.key_expr)
+            if key == self._barrier_key:  # every sample before it is in `published` (or already handed on)
+                thing, _, barrier = sample.payload.to_bytes().decode().partition("\n")
+                published.append((thing, "barrier", barrier, b""))
+                continue
+            parsed = self.keys.parse(key)
             if parsed is not None and parsed.kind in ("properties", "events", "td") and str(sample.kind).endswith("PUT"):
                 published.append((parsed.thing, parsed.kind, parsed.name, sample.payload.to_bytes()))
         if published:
@@ -197,6 +210,10 @@ class Registry:
 
     def _on_sample(self, thing: str, kind: str, name: str, payload: bytes) -> None:
         entry = self._things.get(thing)
+        if kind == "barrier":
+            if entry is not None:
+                entry.settling.discard(int(name))
+            return
         if entry is None or not entry.alive:
             return
         if kind == "td":
@@ -221,7 +238,7 @@ class Registry:
             return
         if kind == "properties":
             entry.samples[name] = entry.samples.get(name, 0) + 1
-            if self._observable(entry, name):
+            if self._observable(entry, name) and not entry.settling:
                 entry.values[name] = _Cached(payload, time.monotonic())
         self.observers.publish(thing, kind, Change(name, payload, time.time()))
 
@@ -359,7 +376,7 @@ class Registry:
         before = (entry.generation, entry.epoch, entry.samples.get(prop, 0))
         reply: Reply = await self.call(self.client.request, self.keys.property(thing, prop), None, None, thing)
         if (entry.alive and (entry.generation, entry.epoch, entry.samples.get(prop, 0)) == before
-                and self._observable(entry, prop)):
+                and not entry.settling and self._observable(entry, prop)):
             entry.values[prop] = _Cached(reply.payload, time.monotonic())
         return reply.payload
 
@@ -390,15 +407,30 @@ class Registry:
         return await self.call(self.client.query_all_actions, thing)
 
     async def _mutate(self, thing: str, fn: Callable[..., Any], *args: Any) -> Any:
-        """`fn(*args)` in a worker thread, as a change of `thing`: cached values older than it are dropped."""
+        """`fn(*args)` in a worker thread, as a change of `thing`: its cache is emptied when it answers
+        and stays empty until the samples published before the answer have all been handled."""
         entry = self._entry(thing)
-        started = time.monotonic()
         entry.epoch += 1
         try:
             return await self.call(fn, *args)
         finally:
             entry.epoch += 1
-            entry.values = {k: v for k, v in entry.values.items() if v.at >= started}
+            entry.values.clear()
+            self._settle(entry)
+
+    def _settle(self, entry: ThingEntry) -> None:
+        """Send a barrier through our own subscription: Zenoh puts a local sample in the channel at once,
+        behind every sample already received. Lost (a full channel), it is given up after `max_age`."""
+        import zenoh
+
+        barrier = next(self._barriers)
+        entry.settling.add(barrier)
+        self._loop.call_later(self.max_age, entry.settling.discard, barrier)  # type: ignore[union-attr]
+        try:
+            self.client.session.put(self._barrier_key, f"{entry.name}\n{barrier}".encode(),
+                                    allowed_destination=zenoh.Locality.SESSION_LOCAL)
+        except Exception:  # noqa: BLE001 - a closing session: nothing is cached until the deadline
+            log.debug("no barrier for %s", entry.name, exc_info=True)
 
     async def file(self, thing: str, name: str) -> Reply:
         """A linked file. Files are not in the TD's affordances: a Thing that is alive but has no
