@@ -153,6 +153,45 @@ def test_a_mostly_colliding_workspace_is_said_and_allowed_pairs_free_it(tmp_path
                  out_dir=tmp_path / "c", workers=1)
 
 
+def test_an_arm_shipped_with_visual_meshes_only_collides_with_them_and_says_so(tmp_path):
+    """The UR5 of the collection as hobby and classic arms ship: its `<collision>` elements taken out,
+    its visual .dae meshes left. The tool says which links it takes the visual geometry of, once; the
+    arm meets the floor and itself through those meshes (about as often as through its own collision
+    meshes); no free point lies under the floor; and the points are where our forward kinematics puts
+    the tip of their joint values."""
+    import re
+
+    from tdgen.robot.points_csv import read as read_points_csv
+
+    source = (ROBOTS / "ur_description/urdf/ur5_robot.urdf").read_text()
+    stripped = re.sub(r"<collision>.*?</collision>", "", source, flags=re.S)
+    assert stripped.count("<visual>") == source.count("<visual>") and "<collision>" not in stripped
+    urdf = tmp_path / "ur5_visual_only.urdf"
+    urdf.write_text(stripped)
+    packages = {"example-robot-data": SHARE}
+    robot = Robot.load(urdf, packages=packages)
+    shaped = ["base_link", "shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link",
+              "wrist_3_link"]
+    assert list(robot.visual_collisions) == shaped
+    assert robot.notes() == [f"7 link(s) have no collision geometry; their visual geometry is used for collision: "
+                             f"{', '.join(shaped)}"]
+    visual = generate(robot, None, 3000, seed=3, out_dir=tmp_path / "visual", workers=1)
+    own = generate(Robot.load(ROBOTS / "ur_description/urdf/ur5_robot.urdf"), None, 3000, seed=3,
+                   out_dir=tmp_path / "own", workers=1)
+    assert visual.collision_free < visual.samples, "the arm went through the floor and itself unseen"
+    positions, collision = read_points_csv(visual.files["points"])
+    differ = float(np.mean(collision != read_points_csv(own.files["points"])[1]))  # the same seed: the same q
+    assert differ < 0.02, f"{differ:.1%} of the samples collide otherwise than with the arm's collision meshes"
+    assert positions[~collision][:, 2].min() >= -1.0  # mm: nothing free under the floor it stands on
+    rows = np.loadtxt(visual.files["points"], delimiter=",", skiprows=1)
+    q = np.radians(rows[:, 4:4 + len(robot.joints)])
+    fk = ForwardKinematics(robot)
+    tips = fk.positions(q[:200]) * 1000.0
+    assert np.abs(tips - positions[:200]).max() <= 0.01
+    print(f"\nUR5, visual meshes only: {visual.collision_free} of {visual.samples} free; with its collision meshes "
+          f"{own.collision_free}; {differ:.2%} of the flags differ")
+
+
 def _pybullet_tip(robot: Robot, q: np.ndarray) -> np.ndarray:
     """The tip link's position (mm) by pybullet's own forward kinematics: the independent check."""
     client = pb.connect(pb.DIRECT)
