@@ -178,6 +178,37 @@ def test_same_seed_gives_the_same_csv_whatever_the_worker_count(tmp_path):
     assert one.files["points"].read_bytes() != other.files["points"].read_bytes()
 
 
+def _decimal(value: float, places: int) -> str:
+    """A value as points.csv writes it, by Python: rounded half to even at its last decimal."""
+    n = int(np.rint(value * 10**places))
+    digits = str(abs(n)).rjust(places + 1, "0")
+    return ("-" if n < 0 else "") + (f"{digits[:-places]}.{digits[-places:]}" if places else digits)
+
+
+def test_points_csv_is_written_row_for_row_as_python_formats_it_across_blocks():
+    """The rows are formatted in blocks on all cores: 100,003 rows (four blocks, the last of 3,235 rows)
+    give the bytes Python's own formatting of each value gives, in order."""
+    from tdgen.robot import points_csv
+
+    robot = Robot.load("ur10.urdf")
+    rng = np.random.default_rng(5)
+    n = 3 * points_csv.BLOCK_ROWS + 3235
+    positions = rng.uniform(-1500, 1500, (n, 3))
+    positions[:4] = [[0.0, -0.0004, 0.0005], [-0.0005, 1234.5675, -999.9995], [2.5e-4, -1e-9, 1e-3],
+                     [1300.0, -1300.0, 0.1]]
+    q = rng.uniform(robot.lows(), robot.highs(), (n, len(robot.joints)))
+    collision = rng.random(n) < 0.3
+    data = points_csv.encode(robot, positions, collision, q)
+    joints = robot.to_user_units(q)
+    expected = [",".join(["x", "y", "z", "collision", *(j.name for j in robot.joints)])]
+    expected += [",".join([*(_decimal(v, 3) for v in p), "1" if c else "0", *(_decimal(v, 6) for v in j)])
+                 for p, c, j in zip(positions, collision, joints)]
+    lines = data.decode().split("\n")
+    assert lines[-1] == "" and len(lines) == n + 2
+    wrong = [k for k, (got, want) in enumerate(zip(lines, expected)) if got != want]
+    assert not wrong, [(lines[k], expected[k]) for k in wrong[:3]]
+
+
 BIG_ARM = """<?xml version="1.0"?>
 <robot name="big_arm">
   <link name="base"><collision><geometry><cylinder radius="0.3" length="0.4"/></geometry>

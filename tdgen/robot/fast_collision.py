@@ -11,12 +11,12 @@ bolted to the base not tested against the scene, allowed link/body pairs).
 from __future__ import annotations
 
 import functools
-import threading
 import weakref
 
 import numpy as np
 
 from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.cores import LAUNCH
 from tdgen.robot.link_frames import LinkFrames
 from tdgen.robot.model import Robot
 from tdgen.robot.spheres import PAD, SURE_DEPTH, Convex, cover, link_elements, outer_planes, scene_elements, within
@@ -24,7 +24,6 @@ from tdgen.robot.spheres import PAD, SURE_DEPTH, Convex, cover, link_elements, o
 FREE, COLLIDES, UNSURE = 0, 1, 2
 CHUNK = 65536
 NO_PASSIVE = np.zeros(0)
-_PARALLEL = threading.Lock()  # numba's default threading layer takes one parallel launch at a time per process
 
 
 def _stacked(arrays: list[np.ndarray], trailing: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
@@ -233,7 +232,7 @@ class SphereModel:
         for start in range(0, len(q), CHUNK):
             values = self.frames.values(q[start:start + CHUNK])
             where = tips[start:start + CHUNK] if slot >= 0 else tips
-            with _PARALLEL:
+            with LAUNCH:
                 out[start:start + CHUNK] = sphere_kernel.verdicts(values, *self._args, slot, where)  # type: ignore[call-arg]
         return out, tips
 

@@ -13,7 +13,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
+
+from tdgen.robot.cores import LAUNCH
 
 if TYPE_CHECKING:
     from tdgen.robot.model import Robot
@@ -29,19 +31,36 @@ def encode(robot: Robot, positions: np.ndarray, collision: np.ndarray, q: np.nda
     # the longest a row can be: per value a sign, its digits (one more: rounding up), the point, decimals, a comma
     row = 3 * (3 + len(str(int(np.abs(positions).max(initial=0.0)))) + 4) + 2
     row += joints.shape[1] * (3 + len(str(int(np.abs(joints).max(initial=0.0)))) + 7) + 1
-    out = np.empty(len(header) + len(joints) * row, dtype=np.uint8)
-    out[:len(header)] = np.frombuffer(header, dtype=np.uint8)
-    end = _format(np.ascontiguousarray(positions, dtype=float), np.asarray(collision, dtype=np.bool_), joints, out,
-                  len(header))
-    return out[:end].tobytes()
+    out = np.empty(len(joints) * row, dtype=np.uint8)
+    with LAUNCH:
+        ends = _format_blocks(np.ascontiguousarray(positions, dtype=float), np.asarray(collision, dtype=np.bool_),
+                              joints, out, row, BLOCK_ROWS)
+    starts = np.arange(len(ends)) * BLOCK_ROWS * row
+    return b"".join([header, *(out[s:e] for s, e in zip(starts, ends))])
+
+
+BLOCK_ROWS = 32_768  # rows formatted by one core at a time, each block into its own part of the buffer
+
+
+@njit(cache=True, parallel=True)
+def _format_blocks(positions, collision, joints, out, row, block):  # pragma: no cover (compiled)
+    """Blocks of `block` rows formatted on all cores, block b from b * block * row on (`row`: the longest
+    a row can be); returns where each ends."""
+    blocks = (positions.shape[0] + block - 1) // block
+    ends = np.empty(blocks, dtype=np.int64)
+    for b in prange(blocks):
+        first = b * block
+        last = min(first + block, positions.shape[0])
+        ends[b] = _format(positions, collision, joints, out, first * row, first, last)
+    return ends
 
 
 @njit(cache=True)
-def _format(positions, collision, joints, out, at):  # pragma: no cover (compiled)
-    """The rows as text into `out` from `at` on; returns where they end. numpy's savetxt takes 3 s for
-    1,000,000 rows, one Python % per value; this a third of a second."""
+def _format(positions, collision, joints, out, at, first, last):  # pragma: no cover (compiled)
+    """Rows first..last as text into `out` from `at` on; returns where they end. numpy's savetxt takes 3 s
+    for 1,000,000 rows, one Python % per value; this a third of a second on one core."""
     digits = np.empty(24, dtype=np.uint8)
-    for r in range(positions.shape[0]):
+    for r in range(first, last):
         for c in range(3 + 1 + joints.shape[1]):
             if c:
                 out[at] = 44  # ,

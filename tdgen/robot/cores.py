@@ -1,0 +1,11 @@
+"""One launch of parallel compiled code at a time in a process.
+
+numba's default threading layer (workqueue) is not safe for two threads launching parallel code at
+once: it aborts the process. Every `prange` loop here (the sphere model's verdicts, points.csv's
+formatting) runs under `LAUNCH`.
+"""
+from __future__ import annotations
+
+import threading
+
+LAUNCH = threading.Lock()
