@@ -211,6 +211,7 @@ def write_artefacts(robot: Robot, scene: Surroundings, sampled: Samples, out_dir
 
 
 MOSTLY_COLLIDING = 0.5  # share of colliding samples above which a workspace is worth a warning
+BY_DESIGN = 0.15        # share of all poses from which a pair of the robot's own links touching at rest overlaps by design
 PAIR_SAMPLES = 200      # colliding samples asked which links touch
 
 
@@ -248,10 +249,15 @@ def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, at_r
                        pairs: list[list[str]] | None = None) -> list[str]:
     """When most samples collide, say so and name the link pairs that collide most, and whether the
     robot collides already at rest (joints at 0, within their limits): then the URDF's collision
-    meshes overlap by design, the usual cause. `at_rest`: `robot_at_rest(robot)`, if known; `pairs`:
-    what collides in each of the first PAIR_SAMPLES colliding samples, if known (a live update's)."""
+    meshes overlap by design, the usual cause. And whatever the share, a pair of the robot's own links
+    that touches at rest and collides in BY_DESIGN of all samples or more: parts that overlap by design
+    (a telescoping arm's nested tubes, as convex hulls), with the option that allows exactly each. A
+    pair that collides as often but not at rest is an arm folding into itself (a UR5's upper arm into
+    its base in 37 % of its poses): not said. `at_rest`:
+    `robot_at_rest(robot)`, if known; `pairs`: what collides in each of the first PAIR_SAMPLES
+    colliding samples, if known (a live update's)."""
     share = float(samples.collision.mean()) if len(samples.collision) else 0.0
-    if share <= MOSTLY_COLLIDING:
+    if share < BY_DESIGN:
         return []
     from collections import Counter
 
@@ -265,28 +271,45 @@ def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, at_r
         finally:
             world.close()
     counts = Counter(pair for found in pairs for pair in found)
-    at_rest = robot_at_rest(robot, scene) if at_rest is None else at_rest
     # ties by name: the text depends on the counts only, not on the order pybullet lists contacts in (a
     # world a live update keeps holds its bodies in another order than a new one)
-    most = sorted(counts.items(), key=lambda item: (-item[1], item[0]))[:5]
-    top = ", ".join(f"{pair} ({n * 100 // max(len(colliding), 1)} %)" for pair, n in most)
-    out = [f"{share:.0%} of the samples collide (the workspace is made of the other {1 - share:.0%}); the pairs "
-           f"that collide most: {top or 'none named'}"]
-    if at_rest:
-        out.append(f"{robot.name} collides at rest (every joint at 0): {', '.join(at_rest)}; its collision "
-                   "meshes overlap by design, which a tool like MoveIt's SRDF disables per pair")
+    ranked = sorted(counts.items(), key=lambda item: (-item[1], item[0]))
+    asked = max(len(colliding), 1)
+    out = []
+    bodies = {b.name or f"body {k}" for k, b in enumerate(scene.bodies)}
+    often = [(pair, n / asked * share) for pair, n in ranked
+             if n / asked * share >= BY_DESIGN and pair.partition(" / ")[2] not in bodies]
+    if share > MOSTLY_COLLIDING or often:
+        at_rest = robot_at_rest(robot, scene) if at_rest is None else at_rest
+    if share > MOSTLY_COLLIDING:
+        top = ", ".join(f"{pair} ({n * 100 // asked} %)" for pair, n in ranked[:5])
+        out.append(f"{share:.0%} of the samples collide (the workspace is made of the other {1 - share:.0%}); the "
+                   f"pairs that collide most: {top or 'none named'}")
+        if at_rest:
+            out.append(f"{robot.name} collides at rest (every joint at 0): {', '.join(at_rest)}; its collision "
+                       "meshes overlap by design, which a tool like MoveIt's SRDF disables per pair")
+    own = [(pair, part) for pair, part in often if pair in (at_rest or ())]
+    if own:
+        out.append(f"{', '.join(f'{pair} ({part:.0%} of the samples)' for pair, part in own)}: {robot.name}'s own "
+                   f"links, touching at rest and in that share of all poses; their collision meshes overlap by "
+                   "design most likely (nested parts, or parts that touch as convex hulls): if so, allow exactly "
+                   f"{'that pair' if len(own) == 1 else 'those pairs'}: "
+                   + " ".join(f"--allow-collision {pair.replace(' / ', '/')}" for pair, _ in own))
     return out
 
 
 def robot_at_rest(robot: Robot, scene: Surroundings) -> list[str]:
-    """The robot's own colliding pairs with every joint at 0 (within its limits), no scene around it."""
+    """The robot's own colliding pairs with every joint at 0 (within its limits): its links' pairs, not
+    those with the scene (in whose world it is asked: the robot's allowed pairs may name its bodies)."""
     from tdgen.robot.collision import CollisionWorld
 
-    alone = CollisionWorld(robot, msgspec.structs.replace(scene, bodies=[]))
+    world = CollisionWorld(robot, scene)
+    bodies = {b.name or f"body {k}" for k, b in enumerate(scene.bodies)}
     try:
-        return alone.what_collides(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))
+        pairs = world.what_collides(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))
     finally:
-        alone.close()
+        world.close()
+    return [pair for pair in pairs if pair.partition(" / ")[2] not in bodies]
 
 
 def _thing_name(base_url: str | None, name: str | None) -> str | None:

@@ -173,9 +173,9 @@ class LiveSamples:
         asked of the kept whole-scene world only where the added bodies can change it (a sample that
         collides because of them, or that collided in the base and touches them); elsewhere it is what
         collided in the base (kept from the first update on)."""
-        from tdgen.generate import MOSTLY_COLLIDING, PAIR_SAMPLES, collision_warnings
+        from tdgen.generate import BY_DESIGN, PAIR_SAMPLES, collision_warnings
 
-        if float(self.samples.collision.mean()) <= MOSTLY_COLLIDING:
+        if float(self.samples.collision.mean()) < BY_DESIGN:
             return []
         q = self.base_samples.q
         rows = np.flatnonzero(self.samples.collision)[:PAIR_SAMPLES]

@@ -32,6 +32,18 @@ def test_a_hull_of_degenerate_points_is_refused_saying_why(points, shape):
     assert alpha_shape(points) is None  # the optional shape just has nothing to show
 
 
+def test_points_on_a_plane_but_for_float_dust_are_refused_as_a_plane_not_given_a_hull_of_no_volume():
+    """A Stretch's lift and telescoping arm with the tip on its wrist's axis: x constant to 1e-3 mm over
+    a metre of y and z. qhull makes a sliver of it (0.0000 m^3) that every target would be outside of."""
+    rng = np.random.default_rng(3)
+    points = np.column_stack([-21.4 + rng.uniform(-1e-3, 1e-3, 2000), rng.uniform(-625, -340, 2000),
+                              rng.uniform(170, 1264, 2000)])
+    with pytest.raises(WorkspaceError, match="lie on a plane.*--ee LINK"):
+        convex_hull(points)
+    points[:, 0] = rng.uniform(-30, -10, 2000)  # 20 mm thick: a solid, thin but real
+    assert convex_hull(points).volume == pytest.approx(20 * 285 * 1094, rel=0.06)  # a box, its corners cut
+
+
 def test_bounds_of_nothing_say_every_configuration_collides():
     with pytest.raises(WorkspaceError, match="every sampled configuration collides"):
         bounds(np.zeros((0, 3)))

@@ -404,7 +404,7 @@ def _auto_ee(path: Path, base: str, joints: dict[str, UrdfJoint], held: set[str]
     return _distal_frame(path, tips[0], children, arm)
 
 
-TIP_WORDS = re.compile(r"flange|tool|tcp|end_?effector|ee(_|$)|tip")
+TIP_WORDS = re.compile(r"flange|tool|tcp|end_?effector|ee(_|$)|tip|grasp")
 FINGER_WORDS = re.compile(r"finger|jaw|claw|thumb|knuckle")  # a gripper's body is a tool frame, its fingers not
 
 

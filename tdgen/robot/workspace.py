@@ -50,12 +50,28 @@ def qhull(points: np.ndarray) -> ConvexHull:
     if len(points) < 4:
         raise WorkspaceError(f"{len(points)} collision-free points span no volume (a hull needs 4 or more)")
     try:
-        return ConvexHull(points)
+        hull = ConvexHull(points)
     except QhullError:
-        rank = np.linalg.matrix_rank(points - points.mean(axis=0), tol=1e-6 * np.ptp(points).max(initial=1.0))
-        shape = {0: "a single point", 1: "a line", 2: "a plane"}.get(int(rank), "a degenerate set")
-        raise WorkspaceError(f"the {len(points)} collision-free points lie on {shape}: no workspace volume "
-                             "(a robot with fewer than three independent motions?)") from None
+        raise _flat(points) from None
+    # points on a plane but for float dust (a lift and a telescoping arm, the tip on the wrist's axis: x
+    # varied by 1e-3 mm over a metre) make a hull of no volume that every target is outside of
+    corners = hull.points[hull.vertices]
+    extents = np.linalg.svd(corners - corners.mean(axis=0), compute_uv=False)
+    if extents[-1] <= FLAT * extents[0]:
+        raise _flat(points)
+    return hull
+
+
+FLAT = 1e-5  # a hull thinner than this share of its length is the plane its points lie on
+
+
+def _flat(points: np.ndarray) -> WorkspaceError:
+    spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    rank = int(np.sum(spread > FLAT * spread[0])) if spread[0] > 0 else 0
+    shape = {0: "a single point", 1: "a line", 2: "a plane"}.get(rank, "a degenerate set")
+    return WorkspaceError(f"the {len(points)} collision-free points lie on {shape}: no workspace volume "
+                          "(a robot with fewer than three independent motions, or a tip on the axis of the last "
+                          "joint? --ee LINK picks another tip)")
 
 
 def convex_hull(points: np.ndarray) -> Solid:
