@@ -36,7 +36,7 @@ def encode(robot: Robot, positions: np.ndarray, collision: np.ndarray, q: np.nda
         ends = _format_blocks(np.ascontiguousarray(positions, dtype=float), np.asarray(collision, dtype=np.bool_),
                               joints, out, row, BLOCK_ROWS)
     starts = np.arange(len(ends)) * BLOCK_ROWS * row
-    return b"".join([header, *(out[s:e] for s, e in zip(starts, ends))])
+    return b"".join([header, *(out[s:e].data for s, e in zip(starts, ends))])
 
 
 BLOCK_ROWS = 32_768  # rows formatted by one core at a time, each block into its own part of the buffer
