@@ -88,8 +88,9 @@ def test_a_digest_makes_the_new_points_file_only_from_the_same_samples(ur10, bas
     digest = points_csv.Flags(encoded(ur10, after)).digest()
     assert len(digest) < 200  # a sha and 100 bytes of flags, not the file
     made = held.from_digest(digest)
-    assert made is not None and made.data == encoded(ur10, after)
-    assert np.array_equal(made.collision, after.collision)
+    assert made is not None and np.array_equal(made.collision, after.collision)  # the flags, before any bytes
+    assert made.data == encoded(ur10, after) and np.array_equal(made.collision, after.collision)
+    assert held.data == encoded(ur10, before), "re-flagging changed the file it was made from"
     assert points_csv.Flags(encoded(ur10, other)).from_digest(digest) is None
 
 

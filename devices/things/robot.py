@@ -188,8 +188,9 @@ class RobotThing:
         target = (request["x"], request["y"], request["z"]) if cartesian else None
         return self.twin.plan_move(joints=request.get("joints"), target_mm=target).answer(self.twin)
 
-    def _artefact(self, name: str) -> bytes:
-        data = self._artefacts.get(name)
+    def _artefact(self, name: str) -> bytes | bytearray:
+        flags = self._flags
+        data = flags.data if name == "points.csv" and flags is not None else self._artefacts.get(name)
         if data is None:
             from devices.planning.moves import WorkspacePending
 
@@ -228,8 +229,8 @@ class RobotThing:
             digest = self._fetching.submit(self._digest) if self._flags is not None else None
             files = dict(zip(wanted, self._fetching.map(self._service_file, wanted)))  # at once: ~10 ms sooner
             made = self._points_from_digest(digest.result() if digest is not None else None)
-            files["points.csv"] = made.data if made is not None else self._service_file("points.csv")
-            workspace, flags = self._workspace_of(files["points.csv"], made)
+            points = b"" if made is not None else self._service_file("points.csv")  # made: its bytes when asked for
+            workspace, flags = self._workspace_of(points, made)
             td = generated_td(files["td.json"], self.twin, version)
         except Problem as e:
             if attempt < len(ADOPT_RETRIES_S):
@@ -245,7 +246,9 @@ class RobotThing:
         except (ValueError, msgspec.DecodeError, msgspec.ValidationError) as e:
             log.warning("%s: cannot use the generated artefacts (%s): %s", self.name, hash, e)
             return
-        self._artefacts = {name: files[name] for name in ARTEFACTS}
+        self._artefacts = {name: files[name] for name in ARTEFACTS if name in files}
+        if flags is None:  # a points file in another layout: served as it came
+            self._artefacts["points.csv"] = points
         self._flags = flags
         self.twin.set_workspace(workspace, hash, version)
         self.thing.update_td(td)
@@ -283,6 +286,8 @@ class RobotThing:
         now = self.twin.workspace
         if made is not None and now is not None:
             return now.with_collision(made.collision), made
+        if made is not None:
+            points = bytes(made.data)
         workspace = workspace_from_csv(points)
         try:
             flags = points_csv.Flags(points)

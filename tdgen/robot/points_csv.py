@@ -109,12 +109,17 @@ def read(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 class Flags:
-    """Where each row's collision flag is in a points.csv: re-flag it, or read only the flags."""
+    """Where each row's collision flag is in a points.csv: re-flag it, or read only the flags. A re-flagged
+    file is made when its bytes are first asked for (`data`): a robot that takes a scene change's flags
+    keeps serving the file without copying 7.5 MB until someone downloads it."""
 
-    def __init__(self, data: bytes | bytearray, offsets: np.ndarray | None = None, samples_sha: bytes | None = None):
+    def __init__(self, data: bytes | bytearray, offsets: np.ndarray | None = None, samples_sha: bytes | None = None,
+                 flags: np.ndarray | None = None):
         """`offsets`: known already (the file re-flagged from one whose offsets were found), and with them
-        `samples_sha`, if known (re-flagging keeps the samples)."""
-        self.data = data
+        `samples_sha`, if known (re-flagging keeps the samples), and `flags`: the flag bytes ('0'/'1') this
+        file has instead of those of `data`, if any."""
+        self._data = data
+        self._flags = flags
         self._samples_sha = samples_sha
         if offsets is not None:
             self.offsets = offsets
@@ -133,23 +138,32 @@ class Flags:
             raise ValueError("not a points CSV with a 0/1 collision column")
 
     @property
+    def data(self) -> bytes | bytearray:
+        """The file's bytes (re-flagged on first use: one copy, 8 ms for 7.5 MB)."""
+        if self._flags is not None:
+            buf = bytearray(self._data)
+            np.frombuffer(buf, dtype=np.uint8)[self.offsets] = self._flags
+            self._data, self._flags = buf, None
+        return self._data
+
+    @property
     def collision(self) -> np.ndarray:
-        return np.frombuffer(self.data, dtype=np.uint8)[self.offsets] == ord("1")
+        flags = self._flags if self._flags is not None else np.frombuffer(self._data, dtype=np.uint8)[self.offsets]
+        return flags == ord("1")
 
     def reflagged(self, collision: np.ndarray) -> Flags:
-        """The same file with these collision flags (one copy of it, 8 ms for 7.5 MB)."""
+        """The same file with these collision flags (its bytes made when asked for)."""
         if len(collision) != len(self.offsets):
             raise ValueError(f"{len(collision)} flags for {len(self.offsets)} rows")
-        buf = bytearray(self.data)
-        np.frombuffer(buf, dtype=np.uint8)[self.offsets] = np.where(collision, ord("1"), ord("0"))
-        return Flags(buf, self.offsets, self._samples_sha)
+        flags = np.where(collision, ord("1"), ord("0")).astype(np.uint8)
+        return Flags(self._data, self.offsets, self._samples_sha, flags)
 
     @property
     def samples_sha(self) -> bytes:
         """The sha256 (hex) of the file with every flag 0: which samples it holds, whatever their flags.
         Computed once per file and kept by every re-flagged copy."""
         if self._samples_sha is None:
-            buf = bytearray(self.data)
+            buf = bytearray(self._data)  # whichever flags it holds: all are zeroed
             np.frombuffer(buf, dtype=np.uint8)[self.offsets] = ord("0")
             self._samples_sha = hashlib.sha256(buf).hexdigest().encode()
         return self._samples_sha
