@@ -49,6 +49,8 @@ class GenerationResult:
     calibration: Calibration | None = None
     td: dict = field(default_factory=dict)  # the TD on the mesh (relative forms), as a robot Thing serves it
     warnings: list[str] = field(default_factory=list)  # for people: a workspace that is mostly collision
+    sampled: Samples | None = field(default=None, repr=False, compare=False)  # the samples, kept for a live update
+    points: bytes | bytearray | None = field(default=None, repr=False, compare=False)  # points.csv as written
 
     def summary(self) -> dict:
         """JSON-ready summary (paths as strings)."""
@@ -189,9 +191,8 @@ def write_artefacts(robot: Robot, scene: Surroundings, sampled: Samples, out_dir
                                   else thing_model(td, naming.thing, naming.security)))
     files["robot-info"].write_bytes(_json(robot.info()))
     if points is None:
-        points_csv.write(files["points"], robot, sampled.positions, sampled.collision, sampled.q)
-    else:
-        files["points"].write_bytes(points)
+        points = points_csv.encode(robot, sampled.positions, sampled.collision, sampled.q)
+    files["points"].write_bytes(points)
     write_stl(hull, files["workspace"])
     files["scene"].write_bytes(encode_scene(scene))
     if concave_solid is not None:
@@ -207,7 +208,7 @@ def write_artefacts(robot: Robot, scene: Surroundings, sampled: Samples, out_dir
         out_dir=out, files=files, volume_mm3=hull.volume,
         concave_volume_mm3=concave_solid.volume if concave_solid is not None else None,
         low_mm=_triple(low), high_mm=_triple(high), samples=len(sampled.q), collision_free=len(free),
-        frame=frame, timings=timings, calibration=calibration, td=td, warnings=warnings)
+        frame=frame, timings=timings, calibration=calibration, td=td, warnings=warnings, sampled=sampled, points=points)
 
 
 MOSTLY_COLLIDING = 0.5  # share of colliding samples above which a workspace is worth a warning

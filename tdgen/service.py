@@ -52,6 +52,7 @@ from mesh.wot.td import ThingDescription, decode_td, thing_id
 from tdgen.cache import ArtefactCache, cache_key
 
 if TYPE_CHECKING:
+    from tdgen.generate import GenerationResult
     from tdgen.live import LiveSamples
     from tdgen.robot.calibration import Calibration
     from tdgen.robot.model import Robot
@@ -306,13 +307,15 @@ class TdgenService:
         started = time.perf_counter()
         cached = self.cache.has(key)
         following = None
+        generated: list[tuple[Robot, Calibration | None, GenerationResult]] = []  # kept for the next scene change
         if not cached:
             self._set_status(twin.robot, RobotStatus("generating", twin.version, key, progress=0.0))
             try:
                 following = self._live_update(twin)
                 make_artefacts(twin, self.cache, key, self.workers, self._progress_reporter(twin, key),
                                live=following.samples if following else None,
-                               loaded=(following.robot, following.calibration) if following else None)
+                               loaded=(following.robot, following.calibration) if following else None,
+                               keep=lambda *made: generated.append(made))
             except Exception as e:  # noqa: BLE001 - every failure is reported on the mesh
                 expected = isinstance(e, _user_errors())
                 error = str(e) if expected else f"{type(e).__name__}: {e}"
@@ -332,8 +335,22 @@ class TdgenService:
         log.info("%s: artefacts ready (%s, %.3f s, version %d, hash %s)", twin.robot,
                  "cached" if cached else "followed live" if following else "generated", seconds, twin.version, key)
         self.thing.emit_event("generated", {"robot": twin.robot, "hash": key, "version": twin.version})
-        self._follow(twin, key, following)
+        self._follow(twin, key, following or (self._held(twin, *generated[0]) if generated else None))
         return status
+
+    def _held(self, twin: TwinDescription, robot: Robot, calibration: Calibration | None,
+              result: GenerationResult) -> Following | None:
+        """A generation's samples and points.csv as a live update starts from them, instead of reading the
+        file back and drawing the configurations again (some 50 ms, which the first scene change waited for)."""
+        from tdgen.live import LiveSamples
+
+        if not self.live or twin.samples > LIVE_SAMPLES or result.sampled is None or result.points is None:
+            return None
+        try:
+            samples = LiveSamples(robot, scene_of(twin), result.sampled, result.points, twin.collision_model)
+        except ValueError:  # not a points file one can re-flag: read back from the cache entry, as after a hit
+            return None
+        return Following(twin, robot, calibration, samples)
 
     # --- live updates (tdgen.live) ---------------------------------------------------------------------
     def _live_update(self, twin: TwinDescription) -> Following | None:
@@ -428,9 +445,11 @@ def load_robot(twin: TwinDescription) -> tuple[Robot, Calibration | None]:
 
 def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, workers: int | None = None,
                    on_progress: Callable[[float], None] | None = None, live: LiveSamples | None = None,
-                   loaded: tuple[Robot, Calibration | None] | None = None) -> Path:
+                   loaded: tuple[Robot, Calibration | None] | None = None,
+                   keep: Callable[[Robot, Calibration | None, GenerationResult], None] | None = None) -> Path:
     """Generate `twin`'s artefacts into the cache entry `key` (the one pipeline of `twinmesh tdgen`);
-    with `live`, the samples of a live update in the twin's scene instead of a generation."""
+    with `live`, the samples of a live update in the twin's scene instead of a generation. `keep` is
+    handed a generation's robot and result (its samples and points.csv: the next live update's start)."""
     from tdgen.generate import Naming, generate, write_artefacts
     from tdgen.td import robot_id
 
@@ -451,6 +470,8 @@ def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, worker
         for warning in result.warnings:
             log.warning("%s: %s", twin.robot, warning)
         (folder / "twin.json").write_bytes(msgspec.json.encode(twin))
+        if keep is not None and live is None:
+            keep(robot, calibration, result)
 
     return cache.make(key, fill)
 
