@@ -1,9 +1,9 @@
 """points.csv, the sampled workspace as a file: `x,y,z,collision,<joint names>` (mm, 0/1, deg or mm).
 
-Written once per generation (`write`), read by target checks (`read`, `read_bytes`). A scene change
+Made once per generation (`encode`), read by target checks (`read`, `read_bytes`). A scene change
 keeps the sampled configurations and changes only some collision flags, so a live update re-flags
 the previous file in place (`Flags`): one byte per row, at offsets found once, instead of formatting
-80,000 rows again (0.2 s). The bytes are those `write` gives for the same samples.
+80,000 rows again (0.2 s). The bytes are those `encode` gives for the same samples.
 """
 from __future__ import annotations
 
@@ -89,10 +89,6 @@ def _format(positions, collision, joints, out, at, first, last):  # pragma: no c
         out[at] = 10  # newline
         at += 1
     return at
-
-
-def write(path: Path, robot: Robot, positions: np.ndarray, collision: np.ndarray, q: np.ndarray) -> None:
-    path.write_bytes(encode(robot, positions, collision, q))
 
 
 def read_bytes(data: bytes, source: str = "points.csv") -> tuple[np.ndarray, np.ndarray]:
