@@ -13,6 +13,7 @@ serves on the mesh (what the tdgen service hands to robots).
 from __future__ import annotations
 
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Literal
@@ -25,6 +26,7 @@ from mesh.messages.scene import DEFAULT_SAMPLES
 from mesh.wot.td import NOSEC, Security
 from tdgen.robot import points_csv
 from tdgen.robot.calibration import Calibration, CalibrationError, Model, load_calibration
+from tdgen.robot.collision import CollisionWorld, body_names
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import RobotPlacement, Surroundings, default_scene, encode_scene, load_scene
 from tdgen.robot.workspace import WorkspaceError, alpha_shape, bounds, convex_hull, write_stl
@@ -219,8 +221,6 @@ PAIR_SAMPLES = 200      # colliding samples asked which links touch
 def start_pose_hint(robot: Robot, scene: Surroundings) -> str:
     """Why (nearly) every sample collides, when the robot collides already where it starts (every joint at
     0, within its limits): the pairs that touch there, and the option that allows exactly each pair."""
-    from tdgen.robot.collision import CollisionWorld
-
     world = CollisionWorld(robot, scene)
     try:
         pairs = world.what_collides(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))
@@ -260,28 +260,36 @@ def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, at_r
     share = float(samples.collision.mean()) if len(samples.collision) else 0.0
     if share < BY_DESIGN:
         return []
-    from collections import Counter
-
-    from tdgen.robot.collision import CollisionWorld
-
     colliding = samples.q[samples.collision][:PAIR_SAMPLES]
+    world = None
     if pairs is None:
         world = CollisionWorld(robot, scene)
         try:
             pairs = [world.what_collides(q) for q in colliding]
-        finally:
+        except BaseException:
             world.close()
-    counts = Counter(pair for found in pairs for pair in found)
+            raise
+    try:
+        return _warnings(robot, scene, share, len(colliding), Counter(pair for found in pairs for pair in found),
+                         at_rest, world, set(body_names(scene)))
+    finally:
+        if world is not None:
+            world.close()
+
+
+def _warnings(robot: Robot, scene: Surroundings, share: float, asked: int, counts: Counter[str],
+              at_rest: list[str] | None, world: CollisionWorld | None, bodies: set[str]) -> list[str]:
+    """`collision_warnings`' words, from the pairs counted in `asked` colliding samples (`world`: one of the
+    scene already open, if any, to ask what collides at rest)."""
     # ties by name: the text depends on the counts only, not on the order pybullet lists contacts in (a
     # world a live update keeps holds its bodies in another order than a new one)
     ranked = sorted(counts.items(), key=lambda item: (-item[1], item[0]))
-    asked = max(len(colliding), 1)
+    asked = max(asked, 1)
     out = []
-    bodies = {b.name or f"body {k}" for k, b in enumerate(scene.bodies)}
     often = [(pair, n / asked * share) for pair, n in ranked
              if n / asked * share >= BY_DESIGN and pair.partition(" / ")[2] not in bodies]
     if share > MOSTLY_COLLIDING or often:
-        at_rest = robot_at_rest(robot, scene) if at_rest is None else at_rest
+        at_rest = robot_at_rest(robot, scene, world) if at_rest is None else at_rest
     if share > MOSTLY_COLLIDING:
         top = ", ".join(f"{pair} ({n * 100 // asked} %)" for pair, n in ranked[:5])
         out.append(f"{share:.0%} of the samples collide (the workspace is made of the other {1 - share:.0%}); the "
@@ -299,17 +307,17 @@ def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, at_r
     return out
 
 
-def robot_at_rest(robot: Robot, scene: Surroundings) -> list[str]:
+def robot_at_rest(robot: Robot, scene: Surroundings, world: CollisionWorld | None = None) -> list[str]:
     """The robot's own colliding pairs with every joint at 0 (within its limits): its links' pairs, not
-    those with the scene (in whose world it is asked: the robot's allowed pairs may name its bodies)."""
-    from tdgen.robot.collision import CollisionWorld
-
-    world = CollisionWorld(robot, scene)
-    bodies = {b.name or f"body {k}" for k, b in enumerate(scene.bodies)}
+    those with the scene (in whose world it is asked: the robot's allowed pairs may name its bodies).
+    `world`: one of `scene` already open, else one is made."""
+    asked = world or CollisionWorld(robot, scene)
     try:
-        pairs = world.what_collides(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))
+        pairs = asked.what_collides(np.clip(np.zeros(len(robot.joints)), robot.lows(), robot.highs()))
     finally:
-        world.close()
+        if world is None:
+            asked.close()
+    bodies = set(body_names(scene))
     return [pair for pair in pairs if pair.partition(" / ")[2] not in bodies]
 
 

@@ -229,7 +229,7 @@ class RobotThing:
             digest = self._fetching.submit(self._digest) if self._flags is not None else None
             files = dict(zip(wanted, self._fetching.map(self._service_file, wanted)))  # at once: ~10 ms sooner
             made = self._points_from_digest(digest.result() if digest is not None else None)
-            points = b"" if made is not None else self._service_file("points.csv")  # made: its bytes when asked for
+            points = None if made is not None else self._service_file("points.csv")  # made: its bytes when asked for
             workspace, flags = self._workspace_of(points, made)
             td = generated_td(files["td.json"], self.twin, version)
         except Problem as e:
@@ -247,7 +247,7 @@ class RobotThing:
             log.warning("%s: cannot use the generated artefacts (%s): %s", self.name, hash, e)
             return
         self._artefacts = {name: files[name] for name in ARTEFACTS if name in files}
-        if flags is None:  # a points file in another layout: served as it came
+        if flags is None and points is not None:  # a points file in another layout: served as it came
             self._artefacts["points.csv"] = points
         self._flags = flags
         self.twin.set_workspace(workspace, hash, version)
@@ -278,16 +278,18 @@ class RobotThing:
             return None
         return self._flags.from_digest(digest)
 
-    def _workspace_of(self, points: bytes, made: points_csv.Flags | None) -> tuple[Workspace, points_csv.Flags | None]:
-        """The check's workspace from a points.csv, and where its flags are. The same samples with other
-        flags (`made` from a digest, after a scene change) keep the points and their k-d tree."""
+    def _workspace_of(self, points: bytes | None,
+                      made: points_csv.Flags | None) -> tuple[Workspace, points_csv.Flags | None]:
+        """The check's workspace from a points.csv (`points`, or the one `made` from a digest, after a scene
+        change), and where its flags are. The same samples with other flags keep the points and their k-d tree."""
         from devices.sim.robot import workspace_from_csv
 
         now = self.twin.workspace
-        if made is not None and now is not None:
-            return now.with_collision(made.collision), made
         if made is not None:
-            points = bytes(made.data)
+            if now is not None:
+                return now.with_collision(made.collision), made
+            return workspace_from_csv(bytes(made.data)), made
+        assert points is not None, "no digest: the points file was fetched"
         workspace = workspace_from_csv(points)
         try:
             flags = points_csv.Flags(points)

@@ -339,6 +339,11 @@ class CollisionWorld:
         return out
 
 
+def body_names(scene: Surroundings) -> list[str]:
+    """The scene bodies' names as pairs name them (`body k` for the k-th if it has none), in the scene's order."""
+    return [b.name or f"body {k}" for k, b in enumerate(scene.bodies)]
+
+
 def _names(ids: list[int], scene: Surroundings) -> dict[int, str]:
-    """pybullet body id -> the scene body's name (`body k` for the k-th if it has none), in the scene's order."""
-    return {i: b.name or f"body {k}" for k, (i, b) in enumerate(zip(ids, scene.bodies))}
+    """pybullet body id -> the scene body's name (`body_names`)."""
+    return dict(zip(ids, body_names(scene)))
