@@ -29,11 +29,12 @@ from tdgen.robot.calibration import Calibration, CalibrationError, Model, load_c
 from tdgen.robot.collision import CollisionWorld, body_names
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import RobotPlacement, Surroundings, default_scene, encode_scene, load_scene
-from tdgen.robot.workspace import WorkspaceError, alpha_shape, bounds, convex_hull, write_stl
+from tdgen.robot.workspace import WorkspaceError, alpha_shape, bounds, convex_hull, stl_bytes
 from tdgen.sampling import Samples, sample_workspace
 from tdgen.td import policy, robot_td, served_td, slug, thing_model
 
 Frame = Literal["twin", "real"]
+Writer = Callable[[Path, "bytes | bytearray | points_csv.Flags"], None]  # an artefact's path, its content
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,7 @@ class GenerationResult:
     td: dict = field(default_factory=dict)  # the TD on the mesh (relative forms), as a robot Thing serves it
     warnings: list[str] = field(default_factory=list)  # for people: a workspace that is mostly collision
     sampled: Samples | None = field(default=None, repr=False, compare=False)  # the samples, kept for a live update
-    points: bytes | bytearray | None = field(default=None, repr=False, compare=False)  # points.csv as written
+    points: bytes | bytearray | None = field(default=None, repr=False, compare=False)  # a generation's points.csv
 
     def summary(self) -> dict:
         """JSON-ready summary (paths as strings)."""
@@ -152,12 +153,14 @@ class Naming:
 
 def write_artefacts(robot: Robot, scene: Surroundings, sampled: Samples, out_dir: str | Path, naming: Naming,
                     seed: int | None, calibration: Calibration | None = None, frame: Frame = "twin",
-                    concave: bool = False, points: bytes | None = None, timings: dict[str, float] | None = None,
-                    started: float | None = None, warnings: list[str] | None = None) -> GenerationResult:
+                    concave: bool = False, points: bytes | points_csv.Flags | None = None,
+                    timings: dict[str, float] | None = None, started: float | None = None,
+                    warnings: list[str] | None = None, write: Writer | None = None) -> GenerationResult:
     """The workspace, the TD and the files of samples taken in `scene` (positions already in the TD's
     frame). `points`: the points.csv of exactly these samples when it is at hand (a live update's), else
     it is written from them; `warnings`: `collision_warnings` of them, if known. A generation and a live
-    update of the same samples write the same bytes."""
+    update of the same samples write the same bytes. `write(path, content)` (default: into the file) is
+    handed each file instead: a live update keeps them in memory and serves them before they are on disk."""
     timings = {} if timings is None else timings
     started = time.perf_counter() if started is None else started
     warnings = collision_warnings(robot, scene, sampled) if warnings is None else warnings
@@ -180,7 +183,9 @@ def write_artefacts(robot: Robot, scene: Surroundings, sampled: Samples, out_dir
 
     t = time.perf_counter()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    if write is None:
+        out.mkdir(parents=True, exist_ok=True)
+        write = write_file
     base_url = naming.base_url
     kind = "td" if base_url else "tm"
     files = {key: out / file for key, file in ((kind, f"{kind}.json"), ("robot-info", "robot-info.json"),
@@ -189,20 +194,20 @@ def write_artefacts(robot: Robot, scene: Surroundings, sampled: Samples, out_dir
     description = _description(robot, scene, sampled, seed, hull.volume, calibration, frame)
     description += "".join(f" Warning: {w}." for w in warnings)  # a lab's user reads it in the TD
     td = robot_td(robot, low, high, name=naming.thing, frame=frame, thing_id=naming.thing_id, description=description)
-    files[kind].write_bytes(_json(served_td(td, base_url, naming.security) if base_url
-                                  else thing_model(td, naming.thing, naming.security)))
-    files["robot-info"].write_bytes(_json(robot.info()))
+    write(files[kind], _json(served_td(td, base_url, naming.security) if base_url
+                             else thing_model(td, naming.thing, naming.security)))
+    write(files["robot-info"], _json(robot.info()))
     if points is None:
         points = points_csv.encode(robot, sampled.positions, sampled.collision, sampled.q)
-    files["points"].write_bytes(points)
-    write_stl(hull, files["workspace"])
-    files["scene"].write_bytes(encode_scene(scene))
+    write(files["points"], points)
+    write(files["workspace"], stl_bytes(hull))
+    write(files["scene"], encode_scene(scene))
     if concave_solid is not None:
         files["workspace-concave"] = out / "workspace-concave.stl"
-        write_stl(concave_solid, files["workspace-concave"])
+        write(files["workspace-concave"], stl_bytes(concave_solid))
     if calibration is not None:
         files["calibration"] = out / "calibration.json"
-        files["calibration"].write_bytes(calibration.to_json())
+        write(files["calibration"], calibration.to_json())
     timings["writing"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - started
 
@@ -210,7 +215,13 @@ def write_artefacts(robot: Robot, scene: Surroundings, sampled: Samples, out_dir
         out_dir=out, files=files, volume_mm3=hull.volume,
         concave_volume_mm3=concave_solid.volume if concave_solid is not None else None,
         low_mm=_triple(low), high_mm=_triple(high), samples=len(sampled.q), collision_free=len(free),
-        frame=frame, timings=timings, calibration=calibration, td=td, warnings=warnings, sampled=sampled, points=points)
+        frame=frame, timings=timings, calibration=calibration, td=td, warnings=warnings, sampled=sampled,
+        points=None if isinstance(points, points_csv.Flags) else points)
+
+
+def write_file(path: Path, content: bytes | bytearray | points_csv.Flags) -> None:
+    """An artefact into its file (a points file re-flagged in memory: its bytes)."""
+    path.write_bytes(content.data if isinstance(content, points_csv.Flags) else content)
 
 
 MOSTLY_COLLIDING = 0.5  # share of colliding samples above which a workspace is worth a warning

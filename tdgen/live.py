@@ -208,9 +208,5 @@ class LiveSamples:
             FastCollision(part)
         self.worlds.whole(self.scene)
 
-    @property
-    def points(self) -> bytes:
-        return self.flags.data
-
     def close(self) -> None:
         self.worlds.close()

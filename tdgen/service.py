@@ -17,7 +17,9 @@ one it holds instead of fetching it.
 Results are cached on disk under `cache_dir/<key>/` (tdgen.cache), the key derived from everything
 that shapes the output (the URDF's content and its meshes', base, scene, samples, seed, end effector,
 calibration, frame, the robot's name, which titles its TD, and the code that builds them): a robot
-that restarts, or whose scene goes back to an earlier state, gets its files at once. The property `robots` tells, per robot,
+that restarts, or whose scene goes back to an earlier state, gets its files at once. A live update's
+files are served from memory as soon as they are made and written to the cache after (the robot fetches
+them meanwhile). The property `robots` tells, per robot,
 `{status: generating|ready|failed, hash, version, seconds, cached, live, error}`.
 
 Generations run one at a time on one thread (each may use `workers` processes for the collision
@@ -56,6 +58,9 @@ if TYPE_CHECKING:
     from tdgen.live import LiveSamples
     from tdgen.robot.calibration import Calibration
     from tdgen.robot.model import Robot
+    from tdgen.robot.points_csv import Flags
+
+    Artefact = bytes | bytearray | Flags  # a cache entry's file, in memory
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -70,6 +75,7 @@ ARTEFACTS = {  # file suffix -> content type; the generated file is named like t
 FLAGS = "flags"  # `<robot>.flags`: the digest of its points.csv (tdgen.robot.points_csv.Flags.digest)
 SMALL_RUN = 20_000  # samples up to which one process beats a pool (its start-up costs ~1 s per worker)
 LIVE_ROBOTS = 8          # robots whose samples stay in memory to follow their scenes (~100 B per sample)
+WRITE_AFTER_S = 1.0  # a live update's entry is written this long after it is served (the robot fetches meanwhile)
 LIVE_SAMPLES = 2_000_000  # a robot sampled more than this is generated again when its scene changes
 
 
@@ -150,10 +156,13 @@ class TdgenService:
         self._robots: dict[str, RobotStatus] = {}
         self._ready: dict[str, str] = {}  # robot -> hash of its latest artefacts (served while others generate)
         self._digests: dict[str, tuple[str, bytes]] = {}  # robot -> (hash, digest of its points.csv)
+        self._unwritten: dict[str, tuple[str, dict[str, Artefact]]] = {}  # robot -> a live update's (hash, files)
         self._twin_files: dict[str, str] = {}  # robot -> the name of its twin file (from its TD's link)
         self._pending: dict[str, TwinDescription] = {}
         self._lock = threading.Lock()
         self._fetching = ThreadPoolExecutor(4, thread_name_prefix="tdgen-fetch")
+        self._writing = ThreadPoolExecutor(1, thread_name_prefix="tdgen-write")  # live updates' cache entries
+        self._stopping = threading.Event()
         # a daemon thread, not an executor: a stop must not wait for a generation to finish
         self._queue: queue.SimpleQueue[str | None] = queue.SimpleQueue()
         self._generator = threading.Thread(target=self._generate_loop, name="tdgen-generate", daemon=True)
@@ -179,6 +188,8 @@ class TdgenService:
             except Exception:  # the session may be closing
                 pass
         self._fetching.shutdown(wait=False, cancel_futures=True)
+        self._stopping.set()
+        self._writing.shutdown(wait=True)  # the entries served from memory are written now (some ms each)
         self._queue.put(None)
         self.thing.destroy()
 
@@ -203,10 +214,14 @@ class TdgenService:
             raise NotFound(f"tdgen has no file {name!r} (files are <robot>.{{{','.join(ARTEFACTS)}}})")
         with self._lock:
             status, ready = self._robots.get(robot), self._ready.get(robot)
+            unwritten = self._unwritten.get(robot)
         if ready is None:
             if status is not None and status.status == "generating":
                 raise Unavailable(f"{robot}'s artefacts are being generated", reason="workspace-generating")
             raise NotFound(f"tdgen has generated nothing for {robot!r}")
+        if unwritten is not None and unwritten[0] == ready:  # a live update's, not yet on disk
+            content = unwritten[1][suffix]
+            return bytes(content if isinstance(content, (bytes, bytearray)) else content.data), ARTEFACTS[suffix]
         return (self.cache_dir / ready / suffix).read_bytes(), ARTEFACTS[suffix]
 
     def _digest(self, robot: str) -> bytes:
@@ -308,14 +323,17 @@ class TdgenService:
         cached = self.cache.has(key)
         following = None
         generated: list[tuple[Robot, Calibration | None, GenerationResult]] = []  # kept for the next scene change
+        unwritten: dict[str, Artefact] | None = None  # a live update's files: served now, written after
         if not cached:
             self._set_status(twin.robot, RobotStatus("generating", twin.version, key, progress=0.0))
             try:
                 following = self._live_update(twin)
-                make_artefacts(twin, self.cache, key, self.workers, self._progress_reporter(twin, key),
-                               live=following.samples if following else None,
-                               loaded=(following.robot, following.calibration) if following else None,
-                               keep=lambda *made: generated.append(made))
+                if following is not None:
+                    unwritten = live_artefacts(twin, following.samples, following.robot, following.calibration)
+                    self._progress_reporter(twin, key)(1.0)
+                else:
+                    make_artefacts(twin, self.cache, key, self.workers, self._progress_reporter(twin, key),
+                                   keep=lambda *made: generated.append(made))
             except Exception as e:  # noqa: BLE001 - every failure is reported on the mesh
                 expected = isinstance(e, _user_errors())
                 error = str(e) if expected else f"{type(e).__name__}: {e}"
@@ -331,12 +349,27 @@ class TdgenService:
             self._ready[twin.robot] = key
             if following is not None:
                 self._digests[twin.robot] = (key, following.samples.flags.digest())
+            if unwritten is not None:
+                self._unwritten[twin.robot] = (key, unwritten)
         self._set_status(twin.robot, status)
         log.info("%s: artefacts ready (%s, %.3f s, version %d, hash %s)", twin.robot,
                  "cached" if cached else "followed live" if following else "generated", seconds, twin.version, key)
         self.thing.emit_event("generated", {"robot": twin.robot, "hash": key, "version": twin.version})
+        if unwritten is not None:  # on disk once the robot has them (7.5 MB: 2-16 ms, not in its way)
+            self._writing.submit(self._write_entry, twin.robot, key, unwritten)
         self._follow(twin, key, following or (self._held(twin, *generated[0]) if generated else None))
         return status
+
+    def _write_entry(self, robot: str, key: str, files: dict[str, Artefact]) -> None:
+        self._stopping.wait(WRITE_AFTER_S)
+        try:
+            write_entry(self.cache, key, files)
+        except OSError:  # a full disk: the entry is served from memory until the robot's next change
+            log.exception("%s: cannot write its artefacts to the cache", robot)
+            return
+        with self._lock:
+            if self._unwritten.get(robot, ("", {}))[0] == key:
+                del self._unwritten[robot]
 
     def _held(self, twin: TwinDescription, robot: Robot, calibration: Calibration | None,
               result: GenerationResult) -> Following | None:
@@ -450,28 +483,57 @@ def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, worker
     """Generate `twin`'s artefacts into the cache entry `key` (the one pipeline of `twinmesh tdgen`);
     with `live`, the samples of a live update in the twin's scene instead of a generation. `keep` is
     handed a generation's robot and result (its samples and points.csv: the next live update's start)."""
-    from tdgen.generate import Naming, generate, write_artefacts
+    from tdgen.generate import generate
     from tdgen.td import robot_id
 
     robot, calibration = loaded or load_robot(twin)
     workers = workers or (1 if twin.samples <= SMALL_RUN else None)
 
+    if live is not None:
+        files = live_artefacts(twin, live, robot, calibration)
+        if on_progress is not None:
+            on_progress(1.0)
+        return write_entry(cache, key, files)
+
     def fill(folder: Path) -> None:
-        if live is None:
-            result = generate(robot, scene_of(twin), twin.samples, twin.seed, folder, calibration=calibration,
-                              frame=twin.frame, name=twin.robot, thing_id=robot_id(twin.robot), workers=workers,
-                              on_progress=on_progress, collision_model=twin.collision_model)
-        else:
-            result = write_artefacts(robot, live.scene, live.samples, folder, Naming(twin.robot, robot_id(twin.robot)),
-                                     twin.seed, calibration, twin.frame, points=live.points, warnings=live.warnings())
-            if on_progress is not None:
-                on_progress(1.0)
+        result = generate(robot, scene_of(twin), twin.samples, twin.seed, folder, calibration=calibration,
+                          frame=twin.frame, name=twin.robot, thing_id=robot_id(twin.robot), workers=workers,
+                          on_progress=on_progress, collision_model=twin.collision_model)
         (folder / "td.json").write_bytes(msgspec.json.encode(result.td))  # the TD the robot serves on the mesh
         for warning in result.warnings:
             log.warning("%s: %s", twin.robot, warning)
         (folder / "twin.json").write_bytes(msgspec.json.encode(twin))
-        if keep is not None and live is None:
+        if keep is not None:
             keep(robot, calibration, result)
+
+    return cache.make(key, fill)
+
+
+def live_artefacts(twin: TwinDescription, live: LiveSamples, robot: Robot,
+                   calibration: Calibration | None) -> dict[str, Artefact]:
+    """A live update's cache entry in memory, file name -> content (its points.csv re-flagged when first
+    written): the service serves it at once and writes it to the cache after."""
+    from tdgen.generate import Naming, write_artefacts
+    from tdgen.td import robot_id
+
+    files: dict[str, Artefact] = {}
+    result = write_artefacts(robot, live.scene, live.samples, Path(twin.robot), Naming(twin.robot, robot_id(twin.robot)),
+                             twin.seed, calibration, twin.frame, points=live.flags, warnings=live.warnings(),
+                             write=lambda path, content: files.__setitem__(path.name, content))
+    files["td.json"] = msgspec.json.encode(result.td)  # the TD the robot serves on the mesh
+    files["twin.json"] = msgspec.json.encode(twin)
+    for warning in result.warnings:
+        log.warning("%s: %s", twin.robot, warning)
+    return files
+
+
+def write_entry(cache: ArtefactCache, key: str, files: dict[str, Artefact]) -> Path:
+    """`files` (`live_artefacts`) as the cache entry `key`."""
+    from tdgen.generate import write_file
+
+    def fill(folder: Path) -> None:
+        for name, content in files.items():
+            write_file(folder / name, content)
 
     return cache.make(key, fill)
 

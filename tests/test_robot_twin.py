@@ -316,6 +316,7 @@ def test_a_new_obstacle_regenerates_a_smaller_workspace_and_td_observers_see_it(
         assert msgspec.json.decode(client.file("ur10", "twin.json").payload)["version"] == 1
 
         second = _wait(tds, lambda td: td.version == {"instance": "1"})
+        served = client.file("tdgen", "ur10.points.csv").payload  # a live update's: from memory, on disk later
         points_after = workspace_from_csv(client.file("ur10", "points.csv").payload)
         assert (~points_after.collision).sum() < (~points_before.collision).sum()
         assert twin.workspace_hash != hash_before
@@ -326,6 +327,7 @@ def test_a_new_obstacle_regenerates_a_smaller_workspace_and_td_observers_see_it(
         assert regenerating[0] == 0.0 and regenerating[-1] == 1.0 and regenerating == sorted(regenerating), progress
         assert "progress" not in robots["ur10"], "a finished generation has no progress figure"
         assert robots["ur10"]["hash"] == twin.workspace_hash and robots["ur10"]["cached"] is False
+        assert robots["ur10"].get("live") is True  # only the box checked: the samples kept from the generation
         with pytest.raises(Problem) as err:  # where the box now stands
             client.invoke("ur10", "moveToCartesianPosition", dict(zip("xyz", target.tolist())))
         assert err.value.status == 422 and err.value.reason in ("collision", "no-path", "outside-workspace")
@@ -333,6 +335,11 @@ def test_a_new_obstacle_regenerates_a_smaller_workspace_and_td_observers_see_it(
             (WORKSPACE, "files/workspace.stl"), (POINTS, "files/points.csv"),
             (SCENE, "files/scene.json"), (TWIN, "files/twin.json"), (MODEL, "files/ur10.urdf")}
         assert thing.thing.td == second or thing.thing.td.version == second.version
+        entry = tmp_path / "cache" / twin.workspace_hash
+    # the service has stopped: what it served is in its cache, whole, for the next start
+    assert (entry / "points.csv").read_bytes() == served
+    assert workspace_from_csv(served).collision.tolist() == points_after.collision.tolist()
+    assert {p.name for p in entry.iterdir()} >= {"done", "td.json", "twin.json", "workspace.stl", "scene.json"}
 
 
 def test_a_robot_slow_to_give_its_twin_at_first_still_gets_its_td(mesh, twin, tmp_path):

@@ -53,7 +53,7 @@ def test_adding_moving_and_removing_boxes_flags_the_samples_as_a_generation_woul
             live, checked = live.rescene(scene)
             scratch = sample_workspace(ur10, scene, SAMPLES, seed=3, collision_model=model)
             assert np.array_equal(live.samples.collision, scratch.collision), scene.bodies[-1].name
-            assert live.points == encoded(ur10, scratch)
+            assert live.flags.data == encoded(ur10, scratch)
             assert checked <= 2 * int((~generated.collision).sum())  # only base-free samples, once per new body
             if scene is not base:
                 assert live.samples.collision.sum() > generated.collision.sum(), f"{scene.bodies[-1].name} touches none"

@@ -45,7 +45,7 @@ from mesh.wot.invocation import ID, Invocations
 from mesh.wot.payload import decode_json
 from mesh.wot.problem import BadInput, NotAllowed, NotFound, Problem
 from mesh.wot.td import ThingDescription, decode_td, keep_terms, zenoh_forms
-from mesh.wot.validate import validate
+from mesh.wot.validate import prepare, validate
 
 log = logging.getLogger(__name__)
 
@@ -186,6 +186,7 @@ class ExposedThing:
         td = self._truthful(td)
         self.td = td
         self._td_json = self._served_td()
+        prepare(td)
         if self._exposed:
             self.session.put(self.keys.td(self.name), self._td_json, encoding=JSON_ENCODING)
 
@@ -209,6 +210,7 @@ class ExposedThing:
             raise ValueError(f"{self.name}: no handler for {', '.join(missing)}")
         self.td = self._truthful(self.td)
         self._td_json = self._served_td()
+        prepare(self.td)
         import zenoh
 
         k = self.keys

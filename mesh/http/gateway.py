@@ -46,7 +46,7 @@ from mesh.wot.invocation import ActionStatus
 from mesh.wot.payload import JSON_ERRORS, decode_json
 from mesh.wot.problem import BadGateway, BadInput, NotFound, Problem, Unavailable
 from mesh.wot.td import ThingDescription, decode_td
-from mesh.wot.validate import validate
+from mesh.wot.validate import prepare, validate
 
 log = logging.getLogger(__name__)
 PUBLICATIONS_WAITING = 100_000  # samples the adapter holds before it drops the oldest (a burst, or an overload)
@@ -292,6 +292,7 @@ class Registry:
         try:
             entry.td, entry.td_error = with_types(decode_td(payload)), None
             entry.source = msgspec.json.decode(payload)
+            prepare(entry.td)
         except (msgspec.ValidationError, *JSON_ERRORS) as e:
             entry.td_error = f"{entry.name} serves an invalid TD: {e}"
             log.warning(entry.td_error)

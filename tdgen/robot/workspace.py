@@ -132,6 +132,10 @@ def _compact(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def write_stl(solid: Solid, path: Path) -> None:
+    path.write_bytes(stl_bytes(solid))
+
+
+def stl_bytes(solid: Solid) -> bytes:
     """Binary STL with facet normals."""
     triangles = solid.vertices[solid.faces]                                       # (F, 3, 3)
     normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
@@ -140,5 +144,5 @@ def write_stl(solid: Solid, path: Path) -> None:
     facets = np.zeros(len(triangles), dtype=[("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
     facets["normal"], facets["corners"] = normals, triangles
     header = b"twinmesh workspace (binary STL)".ljust(80, b" ")
-    path.write_bytes(header + np.uint32(len(facets)).tobytes() + facets.tobytes())
+    return header + np.uint32(len(facets)).tobytes() + facets.tobytes()
 
