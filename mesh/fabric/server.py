@@ -186,7 +186,6 @@ class ExposedThing:
         td = self._truthful(td)
         self.td = td
         self._td_json = self._served_td()
-        prepare(td)
         if self._exposed:
             self.session.put(self.keys.td(self.name), self._td_json, encoding=JSON_ENCODING)
 

@@ -292,7 +292,8 @@ class Registry:
         try:
             entry.td, entry.td_error = with_types(decode_td(payload)), None
             entry.source = msgspec.json.decode(payload)
-            prepare(entry.td)
+            if not known:  # not a robot's TD regenerated with new bounds: compiling them would slow its serving
+                prepare(entry.td)
         except (msgspec.ValidationError, *JSON_ERRORS) as e:
             entry.td_error = f"{entry.name} serves an invalid TD: {e}"
             log.warning(entry.td_error)
