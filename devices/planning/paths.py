@@ -13,6 +13,7 @@ colliding path: the plan is repeated at a finer planner resolution while the bud
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -182,10 +183,14 @@ def _ompl_paths(checker: PathChecker, start: np.ndarray, goals: Sequence[np.ndar
     setup = og.SimpleSetup(space)
     setup.setStateValidityChecker(lambda s: checker.free(np.array([s[i] for i in range(n)])))
     si = setup.getSpaceInformation()
-    # the planner checks motions every `fraction` of the space's extent; a joint step of size d
-    # moves no point more than d * |radii| (Cauchy-Schwarz), so this keeps its checks near resolution_m
-    step = resolution_m / max(float(np.linalg.norm(checker.radii)), 1e-9)
-    si.setStateValidityCheckingResolution(min(0.05, step / space.getMaximumExtent()))
+    if isinstance(checker.world, FastCollision):  # a motion's states judged in one call
+        motions = _batched_motions()(si, checker, n, resolution_m)  # held here while OMPL plans with it
+        si.setMotionValidator(motions)
+    else:
+        # the planner checks motions every `fraction` of the space's extent; a joint step of size d
+        # moves no point more than d * |radii| (Cauchy-Schwarz), so this keeps its checks near resolution_m
+        step = resolution_m / max(float(np.linalg.norm(checker.radii)), 1e-9)
+        si.setStateValidityCheckingResolution(min(0.05, step / space.getMaximumExtent()))
 
     def state(values: np.ndarray):
         s = space.allocState()
@@ -213,6 +218,30 @@ def _ompl_paths(checker: PathChecker, start: np.ndarray, goals: Sequence[np.ndar
         path[0] = start
         path[-1] = min(goals, key=lambda g: float(np.abs(np.asarray(g) - path[-1]).max()))
     return [simplified, raw]
+
+
+@functools.cache
+def _batched_motions() -> type:
+    """OMPL's motion validator for the fast model: a motion's states at the planner's resolution judged in
+    one call (`FastCollision.first_collision`: the spheres for all of them at once, the exact test for
+    the unsure ones), instead of one Python call per state."""
+    from ompl import base as ob
+
+    class BatchedMotions(ob.MotionValidator):
+        def __init__(self, si, checker: PathChecker, n: int, resolution_m: float):
+            super().__init__(si)
+            self.checker, self.n, self.resolution_m = checker, n, resolution_m
+
+        def checkMotion(self, s1, s2, *last_valid) -> bool:  # noqa: N802 - OMPL's name
+            # (the overload with `last_valid` is not used by RRTConnect or the path simplifier)
+            n, checker = self.n, self.checker
+            a, b = np.array([s1[i] for i in range(n)]), np.array([s2[i] for i in range(n)])
+            k = checker.subdivisions(a, b, self.resolution_m)
+            checker.checks += k
+            assert isinstance(checker.world, FastCollision)
+            return not checker.world.first_collision(a + (b - a) * (_bisection_order(k)[:, None] / k))
+
+    return BatchedMotions
 
 
 def _states(path, n: int) -> np.ndarray:
