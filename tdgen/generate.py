@@ -262,8 +262,9 @@ def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, at_r
     """When most samples collide, say so and name the link pairs that collide most, and whether the
     robot collides already at rest (joints at 0, within their limits): then the URDF's collision
     meshes overlap by design, the usual cause. And whatever the share, a pair of the robot's own links
-    that touches at rest and collides in BY_DESIGN of all samples or more: parts that overlap by design
-    (a telescoping arm's nested tubes, as convex hulls), with the option that allows exactly each. A
+    that touches at rest and collides in BY_DESIGN of all samples or more, or in any share when only
+    prismatic joints join the two (`Robot.slide_along`): parts that overlap by design (a telescoping arm's
+    nested tubes, as convex hulls), with the option that allows exactly each. A
     pair that collides as often but not at rest is an arm folding into itself (a UR5's upper arm into
     its base in 37 % of its poses): not said. `at_rest`:
     `robot_at_rest(robot)`, if known; `pairs`: what collides in each of the first PAIR_SAMPLES
@@ -297,8 +298,9 @@ def _warnings(robot: Robot, scene: Surroundings, share: float, asked: int, count
     ranked = sorted(counts.items(), key=lambda item: (-item[1], item[0]))
     asked = max(asked, 1)
     out = []
-    often = [(pair, n / asked * share) for pair, n in ranked
-             if n / asked * share >= BY_DESIGN and pair.partition(" / ")[2] not in bodies]
+    own_pairs = [(pair, n / asked * share) for pair, n in ranked if pair.partition(" / ")[2] not in bodies]
+    often = [(pair, part) for pair, part in own_pairs
+             if part >= BY_DESIGN or robot.slide_along(*pair.split(" / "))]
     if share > MOSTLY_COLLIDING or often:
         at_rest = robot_at_rest(robot, scene, world) if at_rest is None else at_rest
     if share > MOSTLY_COLLIDING:
@@ -310,12 +312,16 @@ def _warnings(robot: Robot, scene: Surroundings, share: float, asked: int, count
                        "meshes overlap by design, which a tool like MoveIt's SRDF disables per pair")
     own = [(pair, part) for pair, part in often if pair in (at_rest or ())]
     if own:
-        out.append(f"{', '.join(f'{pair} ({part:.0%} of the samples)' for pair, part in own)}: {robot.name}'s own "
+        out.append(f"{', '.join(f'{pair} ({_share(part)} of the samples)' for pair, part in own)}: {robot.name}'s own "
                    f"links, touching at rest and in that share of all poses; their collision meshes overlap by "
                    "design most likely (nested parts, or parts that touch as convex hulls): if so, allow exactly "
                    f"{'that pair' if len(own) == 1 else 'those pairs'}: "
                    + " ".join(f"--allow-collision {pair.replace(' / ', '/')}" for pair, _ in own))
     return out
+
+
+def _share(part: float) -> str:
+    return f"{part:.0%}" if part >= 0.01 else f"{part:.1%}"
 
 
 def robot_at_rest(robot: Robot, scene: Surroundings, world: CollisionWorld | None = None) -> list[str]:

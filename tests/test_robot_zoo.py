@@ -71,7 +71,8 @@ if SHARE is None or ARMAR is None or ICUB is None or STRETCH is None:
     pytest.skip(f"{missing} is not installed (pip install -e '.[test]')", allow_module_level=True)
 ROBOTS = SHARE / "robots"
 
-STRETCH_NESTED = [("link_arm_l4", "link_arm_l1"), ("link_lift", "link_arm_l2")]  # as tdgen names them
+STRETCH_NESTED = [("link_arm_l4", "link_arm_l1"), ("link_lift", "link_arm_l2"), ("link_arm_l2", "link_arm_l0"),
+                  ("link_lift", "link_arm_l1"), ("base_link", "link_arm_l3"), ("link_arm_l3", "link_arm_l0")]  # as named
 # id: (URDF under robots/, Robot.load options, expected (base link, tip link, joints), what kind of arm)
 ZOO = {
     "ur5": ("ur_description/urdf/ur5_robot.urdf", {}, ("world", "ee_link", 6), "6-DoF industrial"),
@@ -206,17 +207,18 @@ def test_an_arm_shipped_with_visual_meshes_only_collides_with_them_and_says_so(t
 def test_a_telescoping_arms_nested_tubes_are_named_and_allowing_them_frees_its_workspace(tmp_path):
     """The Stretch's four nested tubes, as convex hulls, overlap where the real ones slide in each other:
     unnamed, they took 49 % of its poses silently (under the half that makes tdgen speak of a mostly
-    colliding workspace). tdgen names the two pairs that touch at rest and in 15 % or more of the poses,
-    with the options that allow exactly them; allowed, over nine in ten samples are free and nothing
-    is said. Its tip is the gripper's grasp centre: the wrist's own frame lies on the yaw axis, and
-    its points on a plane (refused as such, with --ee suggested)."""
+    colliding workspace). tdgen names the six pairs that touch at rest and are joined by prismatic joints
+    only, or collide in 15 % or more of the poses (two did), with the options that allow exactly them;
+    allowed, 98 % of the samples are free (93 % with the two frequent pairs alone) and nothing is said.
+    Its tip is the gripper's grasp centre: the wrist's own frame lies on the yaw axis, and its points on
+    a plane (refused as such, with --ee suggested)."""
     urdf, options, _, _ = ZOO["stretch"]
     plain = generate(Robot.load(urdf), None, 2000, seed=0, out_dir=tmp_path / "plain", workers=1)
     named = [w for w in plain.warnings if "touching at rest" in w]
     assert len(named) == 1, plain.warnings
     assert named[0].endswith(" ".join(f"--allow-collision {a}/{b}" for a, b in STRETCH_NESTED)), named[0]
     allowed = generate(Robot.load(urdf, **options), None, 2000, seed=0, out_dir=tmp_path / "allowed", workers=1)
-    assert not allowed.warnings and allowed.collision_free > 0.9 * allowed.samples > plain.collision_free, \
+    assert not allowed.warnings and allowed.collision_free > 0.95 * allowed.samples > plain.collision_free, \
         (allowed.collision_free, plain.collision_free)
     with pytest.raises(WorkspaceError, match="lie on a plane.*--ee LINK"):
         generate(Robot.load(urdf, ee="link_gripper", **options), None, 500, seed=0, out_dir=tmp_path / "flat", workers=1)

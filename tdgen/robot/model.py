@@ -222,6 +222,18 @@ class Robot:
         """The URDF joints (fixed ones included) from the root link to the end effector."""
         return _path_to(self.ee_link, {j.child: j for j in self._urdf_joints.values()})
 
+    def slide_along(self, a: str, b: str) -> bool:
+        """Whether links a and b are joined by prismatic joints (and fixed ones) only: nested parts of a
+        telescope or a lift, which slide along each other, their convex hulls overlapping by design."""
+        by_child = {j.child: j for j in self._urdf_joints.values()}
+        up_a, up_b = _path_to(a, by_child), _path_to(b, by_child)
+        shared = 0
+        while shared < min(len(up_a), len(up_b)) and up_a[shared] is up_b[shared]:
+            shared += 1
+        between = up_a[shared:] + up_b[shared:]
+        return (any(j.type == "prismatic" for j in between)
+                and all(j.type in ("prismatic", "fixed") for j in between))
+
     def reach(self) -> float:
         """An upper bound of how far the tip gets from the base link (m): the chain's joint offsets end to
         end, each prismatic joint at its longest."""
