@@ -6,7 +6,8 @@ any link moves more than `step_mm` (default 5 mm), by the bound `sum(|dq_i| * ra
 usually found out after a few checks.
 
 Where the straight path collides, OMPL's RRTConnect plans in the same collision world (a plain
-callable is its state validity checker; the planner never knows how validity is computed) to any
+callable is its state validity checker; on the fast model, a motion validator judges each motion's
+states in one batched call; the planner never knows how validity is computed) to any
 of the goal configurations given, within a time budget; the path is simplified by OMPL and then
 checked again by the dense check above, so a planner that was too coarse can never hand back a
 colliding path: the plan is repeated at a finer planner resolution while the budget lasts.
