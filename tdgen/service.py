@@ -477,23 +477,16 @@ def load_robot(twin: TwinDescription) -> tuple[Robot, Calibration | None]:
 
 
 def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, workers: int | None = None,
-                   on_progress: Callable[[float], None] | None = None, live: LiveSamples | None = None,
-                   loaded: tuple[Robot, Calibration | None] | None = None,
+                   on_progress: Callable[[float], None] | None = None,
                    keep: Callable[[Robot, Calibration | None, GenerationResult], None] | None = None) -> Path:
-    """Generate `twin`'s artefacts into the cache entry `key` (the one pipeline of `twinmesh tdgen`);
-    with `live`, the samples of a live update in the twin's scene instead of a generation. `keep` is
-    handed a generation's robot and result (its samples and points.csv: the next live update's start)."""
+    """Generate `twin`'s artefacts into the cache entry `key` (the one pipeline of `twinmesh tdgen`; a
+    live update's are `live_artefacts`, written by `write_entry`). `keep` is handed a generation's robot
+    and result (its samples and points.csv: the next live update's start)."""
     from tdgen.generate import generate
     from tdgen.td import robot_id
 
-    robot, calibration = loaded or load_robot(twin)
+    robot, calibration = load_robot(twin)
     workers = workers or (1 if twin.samples <= SMALL_RUN else None)
-
-    if live is not None:
-        files = live_artefacts(twin, live, robot, calibration)
-        if on_progress is not None:
-            on_progress(1.0)
-        return write_entry(cache, key, files)
 
     def fill(folder: Path) -> None:
         result = generate(robot, scene_of(twin), twin.samples, twin.seed, folder, calibration=calibration,

@@ -16,7 +16,7 @@ from tdgen.robot import points_csv
 from tdgen.robot.model import Robot, resolve_urdf
 from tdgen.robot.surroundings import BoxBody, CylinderBody, RobotPlacement, load_scene
 from tdgen.sampling import sample_workspace
-from tdgen.service import Following, artefact_key, load_robot, make_artefacts, scene_of
+from tdgen.service import Following, artefact_key, live_artefacts, load_robot, make_artefacts, scene_of, write_entry
 
 SAMPLES = 3000
 # on the table beside the UR10 (table-and-wall: the robot's base on the table top at z = 0.625 m, a wall at y = 0.6)
@@ -116,7 +116,7 @@ def test_the_services_live_update_writes_the_files_a_generation_writes(tmp_path,
     following = Following(first, robot, calibration, held)
     assert following.follows(second) and not following.follows(msgspec.structs.replace(second, seed=5))
     samples, _ = held.rescene(scene_of(second))
-    live_entry = make_artefacts(second, cache, artefact_key(second), live=samples, loaded=(robot, calibration))
+    live_entry = write_entry(cache, artefact_key(second), live_artefacts(second, samples, robot, calibration))
     scratch_entry = make_artefacts(second, ArtefactCache(tmp_path / "scratch"), artefact_key(second))
     for name in ("td.json", "points.csv", "workspace.stl", "scene.json", "twin.json", "robot-info.json"):
         assert (live_entry / name).read_bytes() == (scratch_entry / name).read_bytes(), name

@@ -8,7 +8,6 @@ optional alpha shape, a tighter but tunable picture for people to look at.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -129,10 +128,6 @@ def _compact(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndar
     """(vertices, faces) of only the vertices the faces use."""
     used, inverse = np.unique(faces, return_inverse=True)
     return points[used], inverse.reshape(faces.shape)
-
-
-def write_stl(solid: Solid, path: Path) -> None:
-    path.write_bytes(stl_bytes(solid))
 
 
 def stl_bytes(solid: Solid) -> bytes:
