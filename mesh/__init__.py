@@ -11,21 +11,29 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from mesh.wot.consumed import NOTHING, ConsumedThing, Consumer, Invocation
-from mesh.wot.problem import Problem
-
 if TYPE_CHECKING:
     from mesh.fabric.settings import MeshSettings
+    from mesh.wot.consumed import NOTHING, ConsumedThing, Consumer, Invocation
+    from mesh.wot.problem import Problem
 
 __all__ = ["NOTHING", "ConsumedThing", "Consumer", "Invocation", "MeshSettings", "Problem", "consume", "consumer"]
 
 
 def __getattr__(name: str) -> Any:
-    """`mesh.MeshSettings` without loading Zenoh for every `import mesh`."""
+    """The public names, loaded when first asked for: `import mesh.<part>` (a `twinmesh tdgen` run) loads
+    neither Zenoh nor the WoT client and its schema validators."""
     if name == "MeshSettings":
         from mesh.fabric.settings import MeshSettings
 
         return MeshSettings
+    if name == "Problem":
+        from mesh.wot.problem import Problem
+
+        return Problem
+    if name in ("NOTHING", "ConsumedThing", "Consumer", "Invocation"):
+        from mesh.wot import consumed
+
+        return getattr(consumed, name)
     raise AttributeError(f"module 'mesh' has no attribute {name!r}")
 
 
@@ -35,6 +43,7 @@ def consumer(*, session: Any = None, settings: MeshSettings | None = None, auth:
     Zenoh when given an open `session`. `Consumer.thing(name)` finds a Thing by name at `{base}/{name}`
     when a base URL is given, else on the mesh."""
     from mesh.http.client import HttpClient
+    from mesh.wot.consumed import Consumer
 
     clients: list[Any] = []
     resolve = None

@@ -153,7 +153,7 @@ class Naming:
 
 def write_artefacts(robot: Robot, scene: Surroundings, sampled: Samples, out_dir: str | Path, naming: Naming,
                     seed: int | None, calibration: Calibration | None = None, frame: Frame = "twin",
-                    concave: bool = False, points: bytes | points_csv.Flags | None = None,
+                    concave: bool = False, points: bytes | bytearray | points_csv.Flags | None = None,
                     timings: dict[str, float] | None = None, started: float | None = None,
                     warnings: list[str] | None = None, write: Writer | None = None) -> GenerationResult:
     """The workspace, the TD and the files of samples taken in `scene` (positions already in the TD's

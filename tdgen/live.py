@@ -114,7 +114,7 @@ class LiveSamples:
     """One robot's generated samples and points file in its base scene, following the bodies added to it.
     Holds pybullet worlds: `close()` it when done."""
 
-    def __init__(self, robot: Robot, base: Surroundings, samples: Samples, points: bytes | points_csv.Flags,
+    def __init__(self, robot: Robot, base: Surroundings, samples: Samples, points: bytes | bytearray | points_csv.Flags,
                  model: str = "fast", scene: Surroundings | None = None,
                  touches: dict[bytes, np.ndarray] | None = None, worlds: Worlds | None = None):
         """`samples` and `points` as generated in `base`; `scene` (default: the base) and `touches` (per

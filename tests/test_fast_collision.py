@@ -150,6 +150,35 @@ def test_a_seed_gives_the_same_workspace_with_either_model_and_any_number_of_wor
         sample_workspace(robot, scene, 10, collision_model="spheres")
 
 
+def test_the_rows_run_beside_the_exact_checks_get_the_same_answers_as_on_one_core():
+    """Past 65,536 samples the compiled loop finishes on a thread, on one core fewer, while pybullet checks
+    what it left unsure: the flags and points are those of a run on one core (where nothing runs beside),
+    and the rows at the end (those run beside) agree with pybullet's own test."""
+    import numba
+
+    from tdgen.robot.fast_collision import CHUNK
+
+    robot = Robot.load("ur10.urdf")
+    scene = load_scene("table-and-wall")
+    n = 2 * CHUNK + 20_000
+    split = sample_workspace(robot, scene, n, seed=9)
+    cores = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        alone = sample_workspace(robot, scene, n, seed=9)
+    finally:
+        numba.set_num_threads(cores)
+    assert np.array_equal(split.collision, alone.collision)
+    assert np.array_equal(split.positions, alone.positions)
+    tail = np.arange(n - 1500, n)
+    world = CollisionWorld(robot, scene)
+    try:
+        assert np.array_equal(split.collision[tail], world.colliding(split.q[tail]))
+    finally:
+        world.close()
+    assert 0.3 < split.collision.mean() < 0.95  # a scene where both answers are common
+
+
 def test_tdgen_says_its_rate_and_takes_the_exact_model(tmp_path):
     from devices.cli.main import main
 

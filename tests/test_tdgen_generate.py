@@ -186,16 +186,17 @@ def _decimal(value: float, places: int) -> str:
 
 
 def test_points_csv_is_written_row_for_row_as_python_formats_it_across_blocks():
-    """The rows are formatted in blocks on all cores: 100,003 rows (four blocks, the last of 3,235 rows)
-    give the bytes Python's own formatting of each value gives, in order."""
+    """The rows are measured, then formatted, in blocks on all cores: 101,539 rows (four blocks, the last of
+    3,235 rows) give the bytes Python's own formatting of each value gives, in order: zeros, signs, the
+    decimals rounded half to even, numbers of one to seven digits before the point."""
     from tdgen.robot import points_csv
 
     robot = Robot.load("ur10.urdf")
     rng = np.random.default_rng(5)
     n = 3 * points_csv.BLOCK_ROWS + 3235
     positions = rng.uniform(-1500, 1500, (n, 3))
-    positions[:4] = [[0.0, -0.0004, 0.0005], [-0.0005, 1234.5675, -999.9995], [2.5e-4, -1e-9, 1e-3],
-                     [1300.0, -1300.0, 0.1]]
+    positions[:5] = [[0.0, -0.0004, 0.0005], [-0.0005, 1234.5675, -999.9995], [2.5e-4, -1e-9, 1e-3],
+                     [1300.0, -1300.0, 0.1], [1e6, -123456.7891, 99.9995]]
     q = rng.uniform(robot.lows(), robot.highs(), (n, len(robot.joints)))
     collision = rng.random(n) < 0.3
     data = points_csv.encode(robot, positions, collision, q)

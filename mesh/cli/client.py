@@ -4,14 +4,18 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 import click
 
-from mesh import Consumer, consumer
+from mesh import consumer
 from mesh.cli.exits import problem_exit
 from mesh.fabric.client import MeshClient
 from mesh.fabric.settings import MeshSettings
 from mesh.wot.problem import Problem
+
+if TYPE_CHECKING:
+    from mesh.wot.consumed import Consumer
 
 
 @contextmanager

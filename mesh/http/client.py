@@ -33,7 +33,21 @@ PROBLEM = "application/problem+json"
 def parse_auth(auth: str | None) -> httpx.Auth | None:
     """`bearer:TOKEN` or `basic:USER:PASS` (as `twinmesh up --auth` takes it) as an httpx auth."""
     credentials = parse_credentials(auth)
-    return None if credentials is None else credentials.httpx_auth()
+    if credentials is None:
+        return None
+    if credentials.scheme == "basic":
+        user, _, password = credentials.secret.partition(":")
+        return httpx.BasicAuth(user, password)
+    return _Bearer(credentials.secret)
+
+
+class _Bearer(httpx.Auth):
+    def __init__(self, token: str):
+        self.token = token
+
+    def auth_flow(self, request: httpx.Request):
+        request.headers["Authorization"] = f"Bearer {self.token}"
+        yield request
 
 
 def problem_of(r: httpx.Response) -> Problem:

@@ -1,5 +1,6 @@
 """HTTP credentials as `twinmesh up --auth` takes them (`bearer:TOKEN`, `basic:USER:PASS`): parsed once,
-checked by the adapter's middleware, declared in TDs, and sent by the consumer's client."""
+checked by the adapter's middleware, declared in TDs, and sent by the consumer's client (`mesh.http.client`
+makes them an httpx auth: a TD generator needs no HTTP client)."""
 from __future__ import annotations
 
 import base64
@@ -7,8 +8,6 @@ import binascii
 import hmac
 from dataclasses import dataclass, field
 from typing import Any, Literal
-
-import httpx
 
 Scheme = Literal["bearer", "basic"]
 REALM = "twinmesh"
@@ -49,12 +48,6 @@ class Auth:
         return {"bearer_sc": {"scheme": "bearer", "in": "header", "name": "Authorization",
                               "format": "opaque"}}, ["bearer_sc"]
 
-    def httpx_auth(self) -> httpx.Auth:
-        """The same credentials for a client's requests."""
-        if self.scheme == "basic":
-            user, _, password = self.secret.partition(":")
-            return httpx.BasicAuth(user, password)
-        return _Bearer(self.secret)
 
 
 def parse_auth(spec: str | None) -> Auth | None:
@@ -70,11 +63,3 @@ def parse_auth(spec: str | None) -> Auth | None:
             return Auth("basic", f"{user}:{password}")
     raise ValueError("auth must be bearer:TOKEN or basic:USER:PASS")
 
-
-class _Bearer(httpx.Auth):
-    def __init__(self, token: str):
-        self.token = token
-
-    def auth_flow(self, request: httpx.Request):
-        request.headers["Authorization"] = f"Bearer {self.token}"
-        yield request

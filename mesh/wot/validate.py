@@ -9,6 +9,8 @@ range of a double (valid JSON, 400 digits) is refused.
 Valid values, the common case, are let through by fastjsonschema's generated code (about ten
 times faster); jsonschema decides whenever that code refuses, and alone for schemas with a
 `format` (the two libraries check formats differently) or values holding an integer too large.
+jsonschema is loaded at the first schema compiled (30 ms a process that validates nothing, such as
+`twinmesh tdgen`, need not pay).
 """
 from __future__ import annotations
 
@@ -16,16 +18,17 @@ import queue
 import sys
 import threading
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import fastjsonschema
-import jsonschema
 import msgspec
-from jsonschema import Draft7Validator
-from jsonschema.exceptions import ValidationError, relevance
 
 from mesh.wot.problem import BadInput
 from mesh.wot.td import DataSchema, ThingDescription
+
+if TYPE_CHECKING:
+    from jsonschema import Draft7Validator
+    from jsonschema.exceptions import ValidationError
 
 Schema = DataSchema | dict[str, Any] | None
 
@@ -34,12 +37,17 @@ def _double(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= sys.float_info.max
 
 
-_TYPES = Draft7Validator.TYPE_CHECKER.redefine_many({
-    "number": lambda _, v: _double(v),
-    "integer": lambda _, v: _double(v) and (isinstance(v, int) or float(v).is_integer()),
-})
-_Validator = jsonschema.validators.extend(Draft7Validator, type_checker=_TYPES)
-_FORMATS = Draft7Validator.FORMAT_CHECKER
+@lru_cache(maxsize=1)
+def _draft7() -> tuple[Any, Any]:
+    """Draft 7 with TD numbers (`_double`), and its format checker."""
+    import jsonschema
+
+    types = jsonschema.Draft7Validator.TYPE_CHECKER.redefine_many({
+        "number": lambda _, v: _double(v),
+        "integer": lambda _, v: _double(v) and (isinstance(v, int) or float(v).is_integer()),
+    })
+    return jsonschema.validators.extend(jsonschema.Draft7Validator, type_checker=types), \
+        jsonschema.Draft7Validator.FORMAT_CHECKER
 
 
 def validate(value: Any, schema: Schema, path: str = "input") -> None:
@@ -55,6 +63,8 @@ def validate(value: Any, schema: Schema, path: str = "input") -> None:
             pass  # jsonschema says why (or, should they ever differ, decides)
     errors = list(validator.iter_errors(value))
     if errors:  # the most relevant one, not a branch inside oneOf/anyOf: that would mislead
+        from jsonschema.exceptions import relevance
+
         raise BadInput(_sentence(max(errors, key=relevance), path))
 
 
@@ -94,10 +104,13 @@ def _compile_all(waiting: queue.SimpleQueue[bytes]) -> None:
 
 @lru_cache(maxsize=4096)
 def _compiled(schema_json: bytes) -> tuple[Any, Draft7Validator]:
+    from jsonschema import SchemaError
+
+    validator, formats = _draft7()
     schema = msgspec.json.decode(schema_json)
     try:
-        _Validator.check_schema(schema)
-    except jsonschema.SchemaError as e:
+        validator.check_schema(schema)
+    except SchemaError as e:
         raise BadInput(f"the affordance's schema is not valid JSON Schema: {e.message}") from None
     fast = None
     if b'"format"' not in schema_json:
@@ -105,7 +118,7 @@ def _compiled(schema_json: bytes) -> tuple[Any, Draft7Validator]:
             fast = fastjsonschema.compile(schema)
         except fastjsonschema.JsonSchemaDefinitionException:
             fast = None
-    return fast, _Validator(schema, format_checker=_FORMATS)
+    return fast, validator(schema, format_checker=formats)
 
 
 def _doubles_only(value: Any) -> bool:

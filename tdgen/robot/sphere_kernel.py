@@ -364,7 +364,7 @@ def _block(lo, hi, values, tables, pad, sure_depth, tip, tips_out, out):
             tips_out[s] = pos[tip]
 
 
-@njit(cache=True, parallel=True, fastmath=FAST)
+@njit(cache=True, parallel=True, nogil=True, fastmath=FAST)
 def verdicts(values, tables, pad, sure_depth, tip, tips_out):
     """(N, m) joint values -> (N,) verdicts on all cores; with `tip` >= 0, that link's origins into tips_out."""
     n = values.shape[0]
