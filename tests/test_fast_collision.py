@@ -179,6 +179,47 @@ def test_the_rows_run_beside_the_exact_checks_get_the_same_answers_as_on_one_cor
     assert 0.3 < split.collision.mean() < 0.95  # a scene where both answers are common
 
 
+def _capsule_link(name: str, xyz: str, radius: float, length: float, rpy: str = "0 0 0") -> str:
+    return (f'<link name="{name}"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" '
+            f'iyz="0"/></inertial><collision><origin xyz="{xyz}" rpy="{rpy}"/><geometry><capsule radius="{radius}" '
+            f'length="{length}"/></geometry></collision></link>')
+
+
+CAPSULE_ARM = f"""<?xml version="1.0"?>
+<robot name="capsule_arm">
+  <link name="base"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/>
+    </inertial><collision><origin xyz="0 0 0.1"/><geometry><cylinder radius="0.12" length="0.2"/></geometry>
+    </collision></link>
+  {_capsule_link("turret", "0 0 0.15", 0.09, 0.12)}
+  {_capsule_link("upper", "0 0 0.35", 0.07, 0.56)}
+  {_capsule_link("fore", "0.2 0 0.2", 0.05, 0.5, rpy="0 0.785 0")}
+  {_capsule_link("hand", "0 0 0.06", 0.04, 0.06)}
+  <joint name="a1" type="revolute"><parent link="base"/><child link="turret"/><origin xyz="0 0 0.2"/>
+    <axis xyz="0 0 1"/><limit lower="-3.1" upper="3.1" effort="1" velocity="1"/></joint>
+  <joint name="a2" type="revolute"><parent link="turret"/><child link="upper"/><origin xyz="0 0 0.2"/>
+    <axis xyz="0 1 0"/><limit lower="-2.6" upper="2.6" effort="1" velocity="1"/></joint>
+  <joint name="a3" type="revolute"><parent link="upper"/><child link="fore"/><origin xyz="0 0 0.7"/>
+    <axis xyz="0 1 0"/><limit lower="-2.8" upper="2.8" effort="1" velocity="1"/></joint>
+  <joint name="a4" type="revolute"><parent link="fore"/><child link="hand"/><origin xyz="0.35 0 0.35" rpy="0 0.785 0"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+</robot>
+"""
+
+
+def test_an_arm_of_capsules_is_read_whole_and_gets_the_exact_tests_answers(tmp_path):
+    """pybullet's capsule (a URDF extension: humanoids, models converted from MuJoCo) is read as itself,
+    not left to one sphere around pybullet's box (which left every sample near the table to the exact
+    test): a tilted forearm too, against the table, the wall and the arm's own links."""
+    urdf = tmp_path / "capsule_arm.urdf"
+    urdf.write_text(CAPSULE_ARM)
+    verdicts, exact, fast = _agreement(Robot.load(urdf), load_scene("table-and-wall"))
+    assert not fast.spheres.fallback, f"links on pybullet's box: {sorted(fast.spheres.fallback)}"
+    assert not np.any((verdicts == FREE) & exact), "called free, but the exact test finds a collision"
+    assert not np.any((verdicts == COLLIDES) & ~exact), "called colliding, but the exact test finds none"
+    assert 0.2 < exact.mean() < 0.8
+    assert np.mean(verdicts == UNSURE) < 0.08
+
+
 def test_tdgen_says_its_rate_and_takes_the_exact_model(tmp_path):
     from devices.cli.main import main
 

@@ -9,10 +9,11 @@ shapes apart means the exact test cannot find a contact; two inner shapes overla
 `SURE_DEPTH` means it must; everything between is left to the exact test (`fast_collision`).
 
 The geometry comes from the URDF pybullet loaded (`Robot.load_path`: borrowed visual geometry and
-resolved meshes included) and from the scene's own primitives; each link and body is then held
-against pybullet's (the same number of shapes, inside its bounding box). A link that does not match
-(a shape this module does not read, a mesh trimesh cannot open) gets one sphere around everything pybullet has for it and no
-inner sphere: slower (more left to the exact test), never wrong.
+resolved meshes included; boxes, cylinders, spheres, capsules, meshes) and from the scene's own
+primitives; each link and body is then held against pybullet's (the same number of shapes, inside its
+bounding box). A link that does not match (a shape this module does not read, a mesh trimesh cannot
+open) gets one sphere around everything pybullet has for it and no inner sphere: slower (more left to
+the exact test), never wrong.
 """
 from __future__ import annotations
 
@@ -112,6 +113,40 @@ def sphere(radius: float) -> Convex:
     """Outside: the cube around it; inside: the cube in it (a scene's sphere is tested as polytopes)."""
     return Convex(_box_points(np.full(3, radius)), _box_planes(np.full(3, radius / math.sqrt(3))),
                   sphere=(np.zeros(3), radius), inside=np.zeros((1, 3)))
+
+
+def _sphere_points() -> tuple[np.ndarray, float]:
+    """Points of a unit sphere (rings every 30 degrees of latitude, 12 each, and the poles), and the distance
+    from the centre to the nearest face of their hull: scaled by r / that, their hull contains the sphere of
+    radius r."""
+    from scipy.spatial import ConvexHull
+
+    rings = []
+    for k, lat in enumerate(np.radians([-60.0, -30.0, 0.0, 30.0, 60.0])):
+        turn = 2 * np.pi * (np.arange(12) + 0.5 * (k % 2)) / 12
+        rings.append(np.column_stack([np.cos(lat) * np.cos(turn), np.cos(lat) * np.sin(turn), np.full(12, np.sin(lat))]))
+    unit = np.vstack([*rings, [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]])
+    return unit, float(np.min(-ConvexHull(unit).equations[:, 3]))
+
+
+SPHERE_POINTS, SPHERE_INSCRIBED = _sphere_points()
+
+
+def capsule(radius: float, length: float) -> Convex:
+    """A capsule along z (pybullet's URDF extension): a cylinder of `length` between two half-spheres.
+
+    Around it, as for a mesh of many corners (`hull`): the 26 faces of its k-DOP, each touching it (its
+    box is the capsule's own), and behind them points on two spheres pushed out until their hull holds
+    it (5.6 % of the radius out at most); inside it, the hull of points on its surface."""
+    from scipy.spatial import ConvexHull
+
+    ends = np.array([[0.0, 0.0, -length / 2], [0.0, 0.0, length / 2]])
+    around = np.column_stack([DOP, np.max(ends @ DOP.T, axis=0) + radius])
+    pushed = np.vstack([end + radius / SPHERE_INSCRIBED * SPHERE_POINTS for end in ends])
+    faces = ConvexHull(pushed).equations
+    inner = hull(np.vstack([end + radius * SPHERE_POINTS for end in ends]))
+    return Convex(_corners(around, np.zeros(3)), inner.planes, inside=inner.inner_points(), outside=around,
+                  exact=(pushed, _distinct(np.column_stack([faces[:, :3], -faces[:, 3]]))))
 
 
 def hull(vertices: np.ndarray) -> Convex:
@@ -266,6 +301,8 @@ def link_elements(urdf: Path, packages=None) -> dict[str, list[Convex] | None]:
                     element = cylinder(float(shape.attrib["radius"]), float(shape.attrib["length"]), PYBULLET_SIDES)
                 elif shape.tag == "sphere":
                     element = sphere(float(shape.attrib["radius"]))
+                elif shape.tag == "capsule":
+                    element = capsule(float(shape.attrib["radius"]), float(shape.attrib["length"]))
                 elif shape.tag == "mesh":
                     vertices = _mesh_vertices(shape.attrib["filename"], urdf.parent, packages)
                     scale = [float(v) for v in (shape.get("scale") or "1 1 1").split()]
