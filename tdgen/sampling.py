@@ -133,8 +133,9 @@ def _fast(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarra
 
     pybullet's test takes one core (and the GIL) for the unsure ones. Once those pending would keep it
     busy as long as the compiled loop needs for the rest on one core fewer, the rest runs on a thread,
-    on one core fewer, while this thread checks them (1,000,000 UR10 samples: 0.38 s of exact checks
-    that no longer follow the loop). The answers are the same whatever runs when."""
+    on one core fewer, while this thread checks them (1,000,000 UR10 samples in table-and-wall: the
+    last 14 % of the loop runs beside 0.33 s of the 0.38 s of exact checks, 0.1-0.15 s sooner done).
+    The answers are the same whatever runs when."""
     import numba
 
     from tdgen.robot.fast_collision import COLLIDES, FREE, UNSURE, FastCollision
