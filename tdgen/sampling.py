@@ -143,14 +143,15 @@ def _fast(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarra
     fast = FastCollision(world)
     verdict = np.empty(len(q), dtype=np.int8)
     tips = np.empty((len(q), 3))
-    pending: list[np.ndarray] = []  # row indices the spheres left unsure and pybullet has not checked yet
+    pending = np.zeros(0, dtype=np.int64)  # rows the spheres left unsure that pybullet has not checked yet
     cores = numba.get_num_threads()
 
-    def spheres(start: int, stop: int) -> int:
-        """Rows start..stop on all cores; how many it decided."""
+    def spheres(start: int, stop: int) -> np.ndarray:
+        """Rows start..stop on all cores; the rows it left unsure."""
         part, tip = fast.spheres.verdicts_and_tips(q[start:stop], robot.ee_link)
         verdict[start:stop], tips[start:stop] = part, tip
-        return int(np.sum(part != UNSURE))
+        done(int(np.sum(part != UNSURE)))
+        return start + np.flatnonzero(part == UNSURE)
 
     def spheres_of_values(values: np.ndarray, start: int, threads: int) -> None:
         """The rows from `start` on, from their joint values, on `threads` cores (numba's setting is per
@@ -160,47 +161,44 @@ def _fast(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarra
 
     def settle(count: int) -> float:
         """pybullet for the first `count` rows pending; its seconds per row."""
-        rows = np.concatenate(pending)
-        pending[:] = [rows[count:]] if len(rows) > count else []
+        nonlocal pending
+        rows, pending = pending[:count], pending[count:]
         t = time.perf_counter()
-        verdict[rows[:count]] = np.where(world.colliding(q[rows[:count]]), COLLIDES, FREE)
-        done(min(count, len(rows)))
-        return (time.perf_counter() - t) / max(1, min(count, len(rows)))
+        verdict[rows] = np.where(world.colliding(q[rows]), COLLIDES, FREE)
+        done(len(rows))
+        return (time.perf_counter() - t) / max(1, len(rows))
 
     start, exact_per_row, split, found = 0, 0.0, len(q), 0
     while start < split:
         stop = min(start + FAST_CHUNK, split)
         t = time.perf_counter()
-        done(spheres(start, stop))
+        unsure = spheres(start, stop)
         loop_per_row = (time.perf_counter() - t) / (stop - start)  # all cores
-        pending.append(start + np.flatnonzero(verdict[start:stop] == UNSURE))
-        found += len(pending[-1])
+        pending = np.concatenate([pending, unsure])
+        found += len(unsure)
         start = stop
-        unsure = sum(len(p) for p in pending)
-        if cores > 1 and unsure and start < len(q) and split == len(q):
+        if cores > 1 and len(pending) and start < len(q) and split == len(q):
             if not exact_per_row:
                 exact_per_row = settle(200)  # measured on the first few
-                unsure = sum(len(p) for p in pending)
             # the loop on one core fewer is busy for rest * one_fewer; pybullet for the pending and, as the
             # loop goes on, for its share of unsure ones: split where the two are even
             one_fewer = loop_per_row * cores / (cores - 1)
             share = exact_per_row * found / start
-            even = ((len(q) - start) * one_fewer - unsure * exact_per_row) / (one_fewer + share)
+            even = ((len(q) - start) * one_fewer - len(pending) * exact_per_row) / (one_fewer + share)
             if even < FAST_CHUNK:
                 split = start + max(0, int(even))
     if start < len(q):
         values = fast.spheres.frames.values(q[start:])  # here: the thread beside runs compiled code only
         with ThreadPoolExecutor(1, thread_name_prefix="tdgen-spheres") as pool:
             rest = pool.submit(spheres_of_values, values, start, cores - 1)
-            while pending and len(pending[0]) and not rest.done():
+            while len(pending) and not rest.done():
                 settle(CHUNK)
             rest.result()
         tips[start:] = fast.spheres.frames.to_base(tips[start:])
         done(int(np.sum(verdict[start:] != UNSURE)))
-        pending.append(start + np.flatnonzero(verdict[start:] == UNSURE))
-    rows = np.concatenate(pending) if pending else np.zeros(0, dtype=np.int64)
-    if len(rows):
-        verdict[rows] = np.where(_exact(world, robot, scene, q[rows], workers, done), COLLIDES, FREE)
+        pending = np.concatenate([pending, start + np.flatnonzero(verdict[start:] == UNSURE)])
+    if len(pending):
+        verdict[pending] = np.where(_exact(world, robot, scene, q[pending], workers, done), COLLIDES, FREE)
     return verdict == COLLIDES, tips
 
 

@@ -228,28 +228,27 @@ class SphereModel:
         (world frame: `frames.to_base` them): nothing but the compiled loop, which holds no GIL, so it runs
         at full speed on a thread beside Python work (numpy's steps in `verdicts` waited for the GIL up to
         5 ms each behind a busy thread: 100 ms per chunk)."""
-        from tdgen.robot import sphere_kernel
-
-        out = np.empty(len(values), dtype=np.int8)
         slot = self.frames.names.index(tip)
+        out = np.empty(len(values), dtype=np.int8)
         for start in range(0, len(values), CHUNK):
-            with LAUNCH:
-                out[start:start + CHUNK] = sphere_kernel.verdicts(  # type: ignore[call-arg]
-                    values[start:start + CHUNK], *self._args, slot, tips[start:start + CHUNK])
+            out[start:start + CHUNK] = self._loop(values[start:start + CHUNK], slot, tips[start:start + CHUNK])
         return out
 
     def _run(self, q: np.ndarray, slot: int) -> tuple[np.ndarray, np.ndarray]:
-        from tdgen.robot import sphere_kernel
-
         q = np.atleast_2d(np.asarray(q, dtype=float))
         out = np.empty(len(q), dtype=np.int8)
         tips = np.empty((len(q) if slot >= 0 else 1, 3))
         for start in range(0, len(q), CHUNK):
-            values = self.frames.values(q[start:start + CHUNK])
             where = tips[start:start + CHUNK] if slot >= 0 else tips
-            with LAUNCH:
-                out[start:start + CHUNK] = sphere_kernel.verdicts(values, *self._args, slot, where)  # type: ignore[call-arg]
+            out[start:start + CHUNK] = self._loop(self.frames.values(q[start:start + CHUNK]), slot, where)
         return out, tips
+
+    def _loop(self, values: np.ndarray, slot: int, tips: np.ndarray) -> np.ndarray:
+        """The compiled loop over one chunk, on all cores (one launch at a time in a process)."""
+        from tdgen.robot import sphere_kernel
+
+        with LAUNCH:
+            return sphere_kernel.verdicts(values, *self._args, slot, tips)  # type: ignore[call-arg]
 
     def verdicts_here(self, q: np.ndarray, grow: np.ndarray | None = None) -> np.ndarray:
         """`verdicts` on this thread, without the cores' start-up: for a few dozen states (a segment).
