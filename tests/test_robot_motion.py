@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 from devices.planning.moves import MovePlan
-from devices.planning.paths import STEP_MM, PathChecker
+from devices.planning.paths import STEP_MM, NoPath, PathChecker, find_path
 from devices.sim.robot import Base, RobotTwin, workspace_from_csv
 from devices.sim.world import World
 from mesh.wot.problem import Problem
 from tdgen.generate import generate
 from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.fast_collision import FastCollision
 from tdgen.robot.surroundings import BoxBody, build_into
 
 SAMPLES = 4000
@@ -153,6 +154,43 @@ def test_plan_move_answers_like_a_move_and_moves_nothing(twin, ur10, referee):
     with pytest.raises(Problem) as err:
         twin.plan_move(joints={**START, "shoulder_lift_joint": 90.0})  # down through the table
     assert err.value.reason == "collision" and twin.joint_position() == before
+
+
+def test_goals_no_path_reaches_give_way_to_fresh_ones_drawn_between_planning_rounds(ur10, scene, referee):
+    """IK can hand the planner only configurations it cannot reach (an arm folded into a pocket; here, one
+    down through the table, which no path reaches at all). A round that finds nothing asks for fresh
+    goals instead of spending the whole budget on the same ones; a caller with none to give gets the
+    refusal saying how many draws it had."""
+    checker = PathChecker(FastCollision(CollisionWorld(ur10, scene)))
+    to_q = lambda joints: ur10.from_user_units([joints[j.name] for j in ur10.joints])  # noqa: E731
+    start, pocket, beyond = to_q(START), to_q({**START, "shoulder_lift_joint": 90.0}), to_q(BEYOND_THE_WALL)
+    assert checker.free(start) and not checker.free(pocket) and not checker.segment_free(start, beyond)
+    draws: list[int] = []
+
+    def more_goals() -> list[np.ndarray]:
+        draws.append(1)
+        return [pocket, beyond]  # the old goal again is not tried twice
+
+    try:
+        path = find_path(checker, start, [pocket], ur10.lows(), ur10.highs(), budget_s=30.0, more_goals=more_goals)
+        assert path.method == "planned" and np.array_equal(path.waypoints[-1], beyond)
+        assert referee.free(path.waypoints[0]) and referee.path_free(path.waypoints)
+        assert len(draws) == 1
+
+        pockets: list[np.ndarray] = []
+
+        def more_pockets() -> list[np.ndarray]:  # another configuration through the table each time
+            pockets.append(pocket + 0.01 * (len(pockets) + 1))
+            assert not checker.free(pockets[-1])
+            return pockets[-1:]
+
+        with pytest.raises(NoPath) as refused:
+            find_path(checker, start, [pocket], ur10.lows(), ur10.highs(), budget_s=0.5, more_goals=more_pockets)
+        draws_made = 1 + len(pockets)  # the first goals, then one per round that found nothing
+        assert len(pockets) >= 1 and refused.value.tried["goal_draws"] == draws_made
+        assert f"{draws_made} goal configurations from {draws_made} draws" in str(refused.value)
+    finally:
+        checker.world.close()
 
 
 def test_every_accepted_cartesian_move_is_safe_and_reaches_its_target(twin, workspace, referee):

@@ -11,11 +11,12 @@ plans (`devices.sim.robot.RobotTwin`) keeps the motion, the workspace and the li
 """
 from __future__ import annotations
 
+import itertools
 import math
 import threading
 import time
 from dataclasses import dataclass, replace
-from typing import Any, Literal, Protocol
+from typing import Any, Callable, Literal, Protocol
 
 import msgspec
 import numpy as np
@@ -37,7 +38,6 @@ IK_SEEDS = 24       # IK runs per Cartesian target: from the current configurati
 IK_RESTARTS = 20    # random restarts each run may take before it gives up
 QUICK_RESTARTS = 16  # random restarts of the first IK run, from where the arm stands (an unreachable target: 65 -> 8 ms)
 DISTINCT_RAD = 1e-3  # two solutions closer than this (every joint, rad or m) are one
-IK_CANDIDATES = 8   # collision-free solutions offered to the path search, the quickest motion first
 POSE_SOLUTIONS = 4  # pose IK solutions looked for (the first from the current configuration), collision-free ones kept
 POSE_RESTARTS = 60  # random restarts per pose IK run
 TRACE_STEPS = 8    # end-effector points per path segment in a move's answer (`path.tip`)
@@ -271,7 +271,19 @@ class MovePlanner:
                 raise MoveRefused(f"{where}: every joint configuration found for it collides, e.g. "
                                   f"{'; '.join(pairs)}", reason="collision", extra={"collisions": pairs})
             free.sort(key=lambda q: self.motion_duration(now, q))
-            path = self._find_path(checker, now, free, started, where)
+            draws = itertools.count(POSE_SOLUTIONS)
+
+            def more_goals() -> list[np.ndarray]:  # further pose IK runs: the first ones may all sit in pockets
+                fresh = []
+                for attempt in itertools.islice(draws, POSE_SOLUTIONS):
+                    found = solve_pose(self.fk, target_m, rotation, rng=attempt, max_restarts=POSE_RESTARTS,
+                                       accept=checker.free)
+                    q = self.nearest_turn(now, found.q)
+                    if found.ok and checker.free(q):
+                        fresh.append(q)
+                return sorted(fresh, key=lambda q: self.motion_duration(now, q))
+
+            path = self._find_path(checker, now, free, started, where, more_goals)
         _, reached_rot, _ = self.fk.poses_and_jacobians(path.waypoints[-1][None])
         error = np.linalg.norm((Rotation.from_matrix(rotation) * Rotation.from_matrix(reached_rot[0]).inv()).as_rotvec())
         return self._plan(path, target, {"error_deg": round(math.degrees(float(error)), 6)})
@@ -305,8 +317,15 @@ class MovePlanner:
                 raise MoveRefused(f"{where}: every joint configuration found for it ({len(candidates)}) collides, "
                                   f"e.g. {'; '.join(pairs)}", reason="collision",
                                   extra={**info, "configurations": len(candidates), "collisions": pairs})
+            # every collision-free solution goes to the path search, the quickest motion first: a straight
+            # path to the 9th-25th is still found in a millisecond or two, and spares a planning round
             free.sort(key=lambda q: self.motion_duration(now, q))
-            path = self._find_path(checker, now, free[:IK_CANDIDATES], started, where)
+
+            def more_goals() -> list[np.ndarray]:  # fresh IK solutions: the first ones may all sit in pockets
+                fresh = [q for q in self._ik_candidates(now, target_m)[0] if checker.free(q)]
+                return sorted(fresh, key=lambda q: self.motion_duration(now, q))
+
+            path = self._find_path(checker, now, free, started, where, more_goals)
         return self._plan(path, target, info)
 
     def _check_workspace(self, target: np.ndarray, where: str, ws: Workspace | None,
@@ -361,9 +380,10 @@ class MovePlanner:
         return q
 
     def _find_path(self, checker: PathChecker, now: np.ndarray, goals: list[np.ndarray], started: float,
-                   where: str = "") -> JointPath:
+                   where: str = "", more_goals: Callable[[], list[np.ndarray]] | None = None) -> JointPath:
         try:
-            path = find_path(checker, now, goals, self.robot.lows(), self.robot.highs(), self.planning_budget)
+            path = find_path(checker, now, goals, self.robot.lows(), self.robot.highs(), self.planning_budget,
+                             more_goals)
         except NoPath as e:
             raise MoveRefused(f"{where or self.name}: {e.detail}", reason="no-path",
                               extra={"budget_s": self.planning_budget, **e.tried}) from None
