@@ -38,7 +38,7 @@ from devices.sim.layouts.lab import LAB, robot_scene  # noqa: E402
 from devices.sim.robot import Base, RobotTwin, placed  # noqa: E402
 from devices.sim.world import World  # noqa: E402
 from mesh.wot.problem import Problem  # noqa: E402
-from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.collision import CONTACT_TOLERANCE, CollisionWorld  # noqa: E402
 from tdgen.robot.ik import solve, solve_many  # noqa: E402
 from tdgen.robot.model import Robot  # noqa: E402
 from tdgen.robot.surroundings import Surroundings, build_into, load_scene  # noqa: E402
@@ -214,11 +214,35 @@ def unsafe_detail(referee: PathChecker, path: np.ndarray) -> str:
                 fresh = CollisionWorld(referee.world.robot, referee.world.scene)  # no contacts kept from before
                 try:
                     again = "collides" if fresh.collides(q) else "is free"
+                    depth = _deepest_mm(fresh, q)
+                    coarse = _colliding_at_one_degree(fresh, path)
                 finally:
                     fresh.close()
                 return (f"segment {i + 1} of {len(path) - 1}, at {k / n:.4f} of it ({n} referee states): "
-                        f"{'; '.join(referee.world.what_collides(q))}; in a new pybullet world that state {again}")
+                        f"{'; '.join(referee.world.what_collides(q))}; in a new pybullet world that state {again}, "
+                        f"its deepest contact {depth:.4f} mm (contacts under {CONTACT_TOLERANCE * 1000:g} mm "
+                        f"are touching, not colliding); re-checked at 1 degree of joint motion (the issue's test), "
+                        f"{coarse} states collide")
     return "only its last state"
+
+
+def _colliding_at_one_degree(world: CollisionWorld, path: np.ndarray) -> int:
+    """States of the path that collide when it is checked with at most 1 degree of joint motion between them."""
+    count = 0
+    for a, b in zip(path[:-1], path[1:]):
+        m = max(1, int(np.ceil(np.abs(b - a).max() / np.radians(1.0))))
+        count += sum(world.collides(a + (b - a) * (j / m)) for j in range(1, m + 1))
+    return count
+
+
+def _deepest_mm(world: CollisionWorld, q: np.ndarray) -> float:
+    """How deep the robot's deepest contact at q reaches (mm), whatever the pair."""
+    import pybullet as pb
+
+    world._set(world._values(np.asarray(q)[None])[0])
+    pb.performCollisionDetection(physicsClientId=world.client)
+    depths = [-c[8] for c in pb.getContactPoints(bodyA=world.body, physicsClientId=world.client)]
+    return max(depths, default=0.0) * 1000
 
 
 def report(case: Case, before: Tally, now: Tally, fast: Tally, n: int, rate: float, budget: float) -> None:
