@@ -22,7 +22,7 @@ import msgspec
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from devices.planning.paths import PLANNING_BUDGET_S, JointPath, NoPath, PathChecker, find_path
+from devices.planning.paths import DISTINCT_RAD, PLANNING_BUDGET_S, JointPath, NoPath, PathChecker, find_path
 from mesh.wot.problem import BadInput, Refused, Unavailable
 from tdgen.robot.calibration import Calibration
 from tdgen.robot.collision import CollisionWorld
@@ -37,7 +37,6 @@ from tdgen.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM, Workspace
 IK_SEEDS = 24       # IK runs per Cartesian target: from the current configuration and from random starts
 IK_RESTARTS = 20    # random restarts each run may take before it gives up
 QUICK_RESTARTS = 16  # random restarts of the first IK run, from where the arm stands (an unreachable target: 65 -> 8 ms)
-DISTINCT_RAD = 1e-3  # two solutions closer than this (every joint, rad or m) are one
 POSE_SOLUTIONS = 4  # pose IK solutions looked for (the first from the current configuration), collision-free ones kept
 POSE_RESTARTS = 60  # random restarts per pose IK run
 TRACE_STEPS = 8    # end-effector points per path segment in a move's answer (`path.tip`)

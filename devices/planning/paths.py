@@ -35,6 +35,7 @@ from tdgen.robot.fast_collision import FastCollision
 STEP_MM = 5.0            # no point of the robot moves further than this between two checked states
 PLANNING_BUDGET_S = 1.0  # default time a plan may take
 ROUND_S = 0.05           # the first planning round (with `more_goals`); each later round twice as long
+DISTINCT_RAD = 1e-3      # two configurations closer than this (every joint, rad or m) are one
 _COARSE = 20.0           # the planner's own motion checks are this much coarser than STEP_MM at first
 _RANGE = 1.0             # RRTConnect's longest extension (rad or m): short ones waste fewer checks
 BATCH = 4                # segments of this many states or more are judged at once by the fast model
@@ -168,7 +169,7 @@ def find_path(checker: PathChecker, start: np.ndarray, goals: Sequence[np.ndarra
         if more_goals is None or budget_s - (time.perf_counter() - started) <= 0.005:
             continue
         fresh = [g for g in map(np.asarray, more_goals())
-                 if all(np.abs(g - other).max() > 1e-3 for other in goals)]
+                 if all(np.abs(g - other).max() > DISTINCT_RAD for other in goals)]
         tried["goal_draws"] += 1
         tried["straight"] += len(fresh)
         for goal in fresh:
