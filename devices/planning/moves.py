@@ -16,7 +16,7 @@ import math
 import threading
 import time
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Literal, Protocol
+from typing import Any, Callable, Iterable, Literal, Protocol
 
 import msgspec
 import numpy as np
@@ -258,31 +258,26 @@ class MovePlanner:
                                                            "error_deg": round(math.degrees(first.error_rad), 6)})
         with self._lock:
             checker = self._path_checker()
-            free: list[np.ndarray] = []
-            for attempt in range(POSE_SOLUTIONS):
-                found = first if attempt == 0 else solve_pose(self.fk, target_m, rotation, rng=attempt,
-                                                              max_restarts=POSE_RESTARTS, accept=checker.free)
-                q = self.nearest_turn(now, found.q)
-                if found.ok and checker.free(q) and all(np.abs(q - other).max() > DISTINCT_RAD for other in free):
-                    free.append(q)
+
+            def solutions(attempts: Iterable[int]) -> list[np.ndarray]:
+                """Pose IK runs (run 0: from where the arm stands), the distinct collision-free ones, quickest first."""
+                free: list[np.ndarray] = []
+                for attempt in attempts:
+                    found = first if attempt == 0 else solve_pose(self.fk, target_m, rotation, rng=attempt,
+                                                                  max_restarts=POSE_RESTARTS, accept=checker.free)
+                    q = self.nearest_turn(now, found.q)
+                    if found.ok and checker.free(q) and all(np.abs(q - other).max() > DISTINCT_RAD for other in free):
+                        free.append(q)
+                return sorted(free, key=lambda q: self.motion_duration(now, q))
+
+            free = solutions(range(POSE_SOLUTIONS))
             if not free:
                 pairs = checker.world.what_collides(first.q)
                 raise MoveRefused(f"{where}: every joint configuration found for it collides, e.g. "
                                   f"{'; '.join(pairs)}", reason="collision", extra={"collisions": pairs})
-            free.sort(key=lambda q: self.motion_duration(now, q))
-            draws = itertools.count(POSE_SOLUTIONS)
-
-            def more_goals() -> list[np.ndarray]:  # further pose IK runs: the first ones may all sit in pockets
-                fresh = []
-                for attempt in itertools.islice(draws, POSE_SOLUTIONS):
-                    found = solve_pose(self.fk, target_m, rotation, rng=attempt, max_restarts=POSE_RESTARTS,
-                                       accept=checker.free)
-                    q = self.nearest_turn(now, found.q)
-                    if found.ok and checker.free(q):
-                        fresh.append(q)
-                return sorted(fresh, key=lambda q: self.motion_duration(now, q))
-
-            path = self._find_path(checker, now, free, started, where, more_goals)
+            draws = itertools.count(POSE_SOLUTIONS)  # further runs when the first ones all sit in pockets
+            path = self._find_path(checker, now, free, started, where,
+                                   lambda: solutions(itertools.islice(draws, POSE_SOLUTIONS)))
         _, reached_rot, _ = self.fk.poses_and_jacobians(path.waypoints[-1][None])
         error = np.linalg.norm((Rotation.from_matrix(rotation) * Rotation.from_matrix(reached_rot[0]).inv()).as_rotvec())
         return self._plan(path, target, {"error_deg": round(math.degrees(float(error)), 6)})
@@ -310,21 +305,16 @@ class MovePlanner:
                               extra={**info, "error_mm": round(best_error_m * 1000, 6)})
         with self._lock:
             checker = self._path_checker()
-            free = [q for q in candidates if checker.free(q)]
+            # every collision-free solution goes to the path search, the quickest motion first: a straight
+            # path to the 9th-25th is still found in a millisecond or two, and spares a planning round
+            free = self._quickest_free(checker, now, candidates)
             if not free:
                 pairs = checker.world.what_collides(candidates[0])
                 raise MoveRefused(f"{where}: every joint configuration found for it ({len(candidates)}) collides, "
                                   f"e.g. {'; '.join(pairs)}", reason="collision",
                                   extra={**info, "configurations": len(candidates), "collisions": pairs})
-            # every collision-free solution goes to the path search, the quickest motion first: a straight
-            # path to the 9th-25th is still found in a millisecond or two, and spares a planning round
-            free.sort(key=lambda q: self.motion_duration(now, q))
-
-            def more_goals() -> list[np.ndarray]:  # fresh IK solutions: the first ones may all sit in pockets
-                fresh = [q for q in self._ik_candidates(now, target_m)[0] if checker.free(q)]
-                return sorted(fresh, key=lambda q: self.motion_duration(now, q))
-
-            path = self._find_path(checker, now, free, started, where, more_goals)
+            path = self._find_path(checker, now, free, started, where,  # fresh IK when these all sit in pockets
+                                   lambda: self._quickest_free(checker, now, self._ik_candidates(now, target_m)[0]))
         return self._plan(path, target, info)
 
     def _check_workspace(self, target: np.ndarray, where: str, ws: Workspace | None,
@@ -350,6 +340,10 @@ class MovePlanner:
             raise MoveRefused(f"{where}: {check.reason}", reason="collision-risk",
                               extra={**info, "max_collision_probability": self.max_collision_probability})
         return info, (None if check.inside else check.reason)
+
+    def _quickest_free(self, checker: PathChecker, now: np.ndarray, qs: Iterable[np.ndarray]) -> list[np.ndarray]:
+        """The collision-free ones among `qs`, the quickest motion from `now` first."""
+        return sorted((q for q in qs if checker.free(q)), key=lambda q: self.motion_duration(now, q))
 
     def _ik_candidates(self, now: np.ndarray, target_m: np.ndarray) -> tuple[list[np.ndarray], float]:
         """Distinct joint solutions within the limits for a base-frame target (from the current

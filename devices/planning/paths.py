@@ -141,9 +141,14 @@ def find_path(checker: PathChecker, start: np.ndarray, goals: Sequence[np.ndarra
     started, checks0 = time.perf_counter(), checker.checks
     start = np.asarray(start, dtype=float)
     goals = [np.asarray(g, dtype=float) for g in goals]
-    for goal in goals:
-        if checker.segment_free(start, goal):
-            return JointPath(np.array([start, goal]), "straight", _ms(started), checker.checks - checks0)
+
+    def straight(candidates: list[np.ndarray]) -> JointPath | None:
+        goal = next((g for g in candidates if checker.segment_free(start, g)), None)
+        return None if goal is None else JointPath(np.array([start, goal]), "straight", _ms(started),
+                                                   checker.checks - checks0)
+
+    if found := straight(goals):
+        return found
     if not checker.free(start):
         raise NoPath("the robot collides where it stands, so no path can leave it",
                      {"start_collides": True})
@@ -172,9 +177,8 @@ def find_path(checker: PathChecker, start: np.ndarray, goals: Sequence[np.ndarra
                  if all(np.abs(g - other).max() > DISTINCT_RAD for other in goals)]
         tried["goal_draws"] += 1
         tried["straight"] += len(fresh)
-        for goal in fresh:
-            if checker.segment_free(start, goal):
-                return JointPath(np.array([start, goal]), "straight", _ms(started), checker.checks - checks0)
+        if found := straight(fresh):
+            return found
         goals += fresh
     tried["checks"] = checker.checks - checks0
     tried["goals"] = len(goals)
