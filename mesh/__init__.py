@@ -42,13 +42,13 @@ def consumer(*, session: Any = None, settings: MeshSettings | None = None, auth:
     """The clients for consuming Things: HTTP always (with `auth`, `bearer:TOKEN` or `basic:USER:PASS`),
     Zenoh when given an open `session`. `Consumer.thing(name)` finds a Thing by name at `{base}/{name}`
     when a base URL is given, else on the mesh."""
-    from mesh.http.client import HttpClient
+    from mesh.http.http_client import HttpClient
     from mesh.wot.consumed import Consumer
 
     clients: list[Any] = []
     resolve = None
     if session is not None:
-        from mesh.fabric.client import ZenohClient
+        from mesh.fabric.mesh_client import ZenohClient
 
         zenoh = ZenohClient(session, settings)
         clients.append(zenoh)

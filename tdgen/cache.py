@@ -24,7 +24,7 @@ import mesh.http.tdrewrite
 import mesh.messages
 import mesh.urdf_resources
 import mesh.wot
-from mesh.messages.scene import TwinDescription
+from mesh.messages.scene_description import TwinDescription
 from mesh.urdf_resources import MESH_FILENAME, resolve_uri
 
 DONE = "done"  # written last: an entry without it is not one

@@ -22,16 +22,16 @@ from urllib.parse import urlsplit
 import msgspec
 import numpy as np
 
-from mesh.messages.scene import DEFAULT_SAMPLES
-from mesh.wot.td import NOSEC, Security
+from mesh.messages.scene_description import DEFAULT_SAMPLES
+from mesh.wot.thing_description import NOSEC, Security
 from tdgen.robot import points_csv
 from tdgen.robot.calibration import Calibration, CalibrationError, Model, load_calibration
 from tdgen.robot.collision import CollisionWorld, body_names
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import RobotPlacement, Surroundings, default_scene, encode_scene, load_scene
 from tdgen.robot.workspace import WorkspaceError, alpha_shape, bounds, convex_hull, stl_bytes
+from tdgen.robot_td import policy, robot_td, served_td, slug, thing_model
 from tdgen.sampling import Samples, sample_workspace
-from tdgen.td import policy, robot_td, served_td, slug, thing_model
 
 Frame = Literal["twin", "real"]
 Writer = Callable[[Path, "bytes | bytearray | points_csv.Flags"], None]  # an artefact's path, its content

@@ -1,7 +1,7 @@
 """The TD generator on the mesh: the `tdgen` Thing generates every robot's TD and workspace artefacts.
 
 It watches Things join (liveliness); a robot is a Thing whose TD links its twin (`rel: "twin"`,
-`files/twin.json`, a `mesh.messages.scene.TwinDescription`). For each robot it fetches the twin over
+`files/twin.json`, a `mesh.messages.scene_description.TwinDescription`). For each robot it fetches the twin over
 Zenoh, runs `tdgen.generate` (the same pipeline as `twinmesh tdgen`) and serves the results as
 its own files `<robot>.td.json`, `<robot>.points.csv`, `<robot>.workspace.stl` and
 `<robot>.scene.json`, then emits `generated {robot, hash, version}` (or `failed {robot, version,
@@ -43,14 +43,14 @@ from typing import TYPE_CHECKING, Any, Callable, TypeVar
 
 import msgspec
 
-from mesh.fabric.client import MeshClient
+from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.server import ExposedThing
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.lab import RobotStatus
-from mesh.messages.scene import TWIN_CHANGED, TWIN_REL, TwinDescription
+from mesh.messages.scene_description import TWIN_CHANGED, TWIN_REL, TwinDescription
 from mesh.wot import units
 from mesh.wot.problem import NotFound, Problem, TimedOut, Unavailable
-from mesh.wot.td import ThingDescription, decode_td, thing_id
+from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
 from tdgen.cache import ArtefactCache, cache_key
 
 if TYPE_CHECKING:
@@ -483,7 +483,7 @@ def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, worker
     live update's are `live_artefacts`, written by `write_entry`). `keep` is handed a generation's robot
     and result (its samples and points.csv: the next live update's start)."""
     from tdgen.generate import generate
-    from tdgen.td import robot_id
+    from tdgen.robot_td import robot_id
 
     robot, calibration = load_robot(twin)
     workers = workers or (1 if twin.samples <= SMALL_RUN else None)
@@ -507,7 +507,7 @@ def live_artefacts(twin: TwinDescription, live: LiveSamples, robot: Robot,
     """A live update's cache entry in memory, file name -> content (its points.csv re-flagged when first
     written): the service serves it at once and writes it to the cache after."""
     from tdgen.generate import Naming, write_artefacts
-    from tdgen.td import robot_id
+    from tdgen.robot_td import robot_id
 
     files: dict[str, Artefact] = {}
     result = write_artefacts(robot, live.scene, live.samples, Path(twin.robot), Naming(twin.robot, robot_id(twin.robot)),

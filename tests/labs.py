@@ -18,7 +18,7 @@ from pathlib import Path
 
 import httpx
 
-from mesh.fabric.client import MeshClient
+from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
 

@@ -17,7 +17,7 @@ import pytest
 
 from devices.things.fleet import fleet_names
 from devices.things.lights import light_td
-from devices.things.platform import twin_td
+from devices.things.platform_things import twin_td
 from tests.labs import Lab, start_lab
 
 pytestmark = pytest.mark.timeout(600)

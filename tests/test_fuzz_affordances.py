@@ -160,7 +160,7 @@ def test_every_affordance_survives_valid_and_almost_valid_inputs_over_http(lab, 
 
 @pytest.mark.parametrize("thing", lab_things())
 def test_every_affordance_survives_the_same_inputs_over_zenoh(lab, tds, thing):
-    from mesh.fabric.client import MeshClient
+    from mesh.fabric.mesh_client import MeshClient
     from mesh.fabric.session import open_session
     from mesh.fabric.settings import MeshSettings
     from mesh.wot.problem import Problem

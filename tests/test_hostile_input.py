@@ -191,7 +191,7 @@ def test_repairing_something_that_is_no_recording_is_one_line(tmp_path):
 def test_a_simulation_that_stops_stepping_says_so_and_tells_its_process():
     import threading
 
-    from devices.sim.world import World
+    from devices.sim.pybullet_world import World
 
     died = threading.Event()
     world = World(speed=None)
@@ -207,7 +207,7 @@ def test_a_simulation_that_stops_stepping_says_so_and_tells_its_process():
 
 
 def test_speed_factors_outside_the_sane_range_are_refused_by_the_world_and_the_cli():
-    from devices.sim.world import World
+    from devices.sim.pybullet_world import World
 
     world = World(speed=1.0)
     try:

@@ -24,7 +24,7 @@ def lab(tmp_path_factory):
 @pytest.fixture(scope="module")
 def mesh(lab):
     """A Zenoh consumer on the lab: the device's own view, bypassing the adapter and its cache."""
-    from mesh.fabric.client import MeshClient
+    from mesh.fabric.mesh_client import MeshClient
     from mesh.fabric.session import open_session
     from mesh.fabric.settings import MeshSettings
 

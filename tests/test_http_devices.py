@@ -26,7 +26,7 @@ CSV = b"x,y,z,collision\n0,0,0,0\n"
 
 
 def probe_td(name: str):
-    from mesh.wot.td import decode_td, thing_id
+    from mesh.wot.thing_description import decode_td, thing_id
 
     return decode_td({
         "title": name, "id": thing_id(name),

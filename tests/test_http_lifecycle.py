@@ -155,7 +155,7 @@ def _slider(session, keys):
     """A Thing that moves like a robot: its observable `position` is published on the way, then the end,
     then the action answers."""
     from mesh.fabric.server import ExposedThing
-    from mesh.wot.td import decode_td, thing_id
+    from mesh.wot.thing_description import decode_td, thing_id
 
     td = decode_td({"title": "slider", "id": thing_id("slider"),
                     "properties": {"position": {"type": "number", "observable": True}},

@@ -156,7 +156,7 @@ def test_the_directory_tells_when_a_thing_comes_changes_and_goes(lab):
     from mesh.fabric.server import ExposedThing
     from mesh.fabric.session import open_session
     from mesh.fabric.settings import MeshSettings
-    from mesh.wot.td import decode_td
+    from mesh.wot.thing_description import decode_td
 
     got: queue.Queue = queue.Queue()
 

@@ -18,7 +18,7 @@ import pytest
 from labs import start_lab
 from tdschema import assert_valid_td
 
-from devices.sim.robot import workspace_from_csv
+from devices.sim.robot_twin import workspace_from_csv
 from mesh.messages.relations import POINTS, SCENE
 from tdgen.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM
 

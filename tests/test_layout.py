@@ -13,7 +13,7 @@ PACKAGES = ["mesh", "tdgen", "devices"]  # lower to higher
 # each package's parts, lower to higher: a part imports only parts before it (and itself)
 PARTS = {
     "mesh": ["wot", "messages", "urdf_resources", "process", "fabric", "http", "bridge", "recorder", "__init__", "cli"],
-    "tdgen": ["robot", "cache", "sampling", "points_csv", "td", "generate", "live", "service", "__init__", "cli"],
+    "tdgen": ["robot", "cache", "sampling", "points_csv", "robot_td", "generate", "live", "service", "__init__", "cli"],
     "devices": ["planning", "sim", "things", "apps", "lab", "cli", "__main__", "__init__"],
 }
 # a dotted name of ours, optionally with `:function` (how processes used to be wired)

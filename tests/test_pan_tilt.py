@@ -18,12 +18,12 @@ from labs import free_port
 from tdschema import assert_valid_td
 
 from devices.sim.pan_tilt import NOTHING, PanTilt
+from devices.sim.pybullet_world import World, static_box
 from devices.sim.sensors import reading_of
-from devices.sim.world import World, static_box
 from devices.things.binding import serve
 from devices.things.pan_tilt import bind_pan_tilt, pan_tilt_td
 from mesh.wot.problem import BadInput, Problem
-from mesh.wot.td import thing_id, zenoh_forms
+from mesh.wot.thing_description import thing_id, zenoh_forms
 
 BASE = (0.0, 0.0, 0.75)        # the unit stands on a table, looking along +x at home
 CAMERA_Z = BASE[2] + 0.09      # the tilt axis, 9 cm above the mount
@@ -251,7 +251,7 @@ def mesh():
 
 
 def test_on_the_mesh_move_to_answers_when_there_with_the_final_position_published(mesh, unit, world, names):
-    from mesh.fabric.client import MeshClient
+    from mesh.fabric.mesh_client import MeshClient
     from mesh.fabric.server import ExposedThing
     from mesh.fabric.session import open_session
 

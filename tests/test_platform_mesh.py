@@ -132,7 +132,7 @@ def _drain(q: queue.Queue, quiet: float, limit: float = 10.0) -> list:
 
 def test_world_publishes_poses_of_both_robots_and_the_cubes_throttled_and_ends_on_the_final_state(http, client):
     from devices.sim.compensation import DOBOT_MAIN_JOINTS, DOBOT_PASSIVE_JOINTS, UARM_MAIN_JOINTS, UARM_PASSIVE_JOINTS
-    from mesh.messages.scene import Poses
+    from mesh.messages.scene_description import Poses
 
     q: queue.Queue = queue.Queue()
     sub = client.observe("world", "poses", q.put)
@@ -178,7 +178,7 @@ def test_poses_are_quiet_when_nothing_moves(http, client):
 
 
 def test_scene_json_describes_robots_static_and_moving_bodies_and_the_urdfs_download(http):
-    from mesh.messages.scene import SceneDescription
+    from mesh.messages.scene_description import SceneDescription
 
     r = http.get("/world/files/scene.json")
     assert r.status_code == 200 and r.headers["content-type"].startswith("application/json")

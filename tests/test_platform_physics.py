@@ -31,10 +31,10 @@ from devices.sim.compensation import (
     uarm_passive,
 )
 from devices.sim.dobot import Cube, EmptyWarehouse, NoCubeAtPickup
-from devices.sim.layouts.platform import CUBE_COLORS, UARM_BASE, IotPlatform, build_platform
+from devices.sim.layouts.platform_layout import CUBE_COLORS, UARM_BASE, IotPlatform, build_platform
+from devices.sim.pybullet_world import MotionCancelled
 from devices.sim.sensors import InfraredSensor
 from devices.sim.uarm import GOTO_RANGE, OutOfRange, Unreachable, calibration_pairs, real_fk, real_ik
-from devices.sim.world import MotionCancelled
 from mesh.wot.problem import BadInput, Refused
 
 

@@ -42,7 +42,7 @@ ALLOWED = {
     "uarm/actions/beepWithTime": "no sound in simulation",
     # the real `location` declares the goTo box, but the arm stands at homeLoc points outside it
     # (x 50..250, y -330..330) and passes outside it between two points; node-wot validates what
-    # it reads, so the twin declares the arm's whole reach (devices.things.platform.LOCATION_RANGE)
+    # it reads, so the twin declares the arm's whole reach (devices.things.platform_things.LOCATION_RANGE)
     "uarm/properties/location/properties/[xyz]/minimum": "location: the arm's whole reach",
     "uarm/properties/location/properties/[xyz]/maximum": "location: the arm's whole reach",
     # a TD offers only what a handler serves (mesh.fabric.server.ExposedThing._truthful): the twin's location is
@@ -106,7 +106,7 @@ def assert_like_the_real_td(slug: str, twin: dict, served: bool = True) -> set[s
 
 # --- without a lab: the TDs the devices are built with --------------------------------------------
 def test_twin_tds_have_the_real_affordances_and_schemas_with_only_the_documented_deviations():
-    from devices.things.platform import PLATFORM_DEVICES, twin_td
+    from devices.things.platform_things import PLATFORM_DEVICES, twin_td
 
     assert set(PLATFORM_DEVICES) == set(REAL)
     used: set[str] = set()
@@ -116,7 +116,7 @@ def test_twin_tds_have_the_real_affordances_and_schemas_with_only_the_documented
 
 
 def test_twin_tds_say_their_deviations_in_their_descriptions():
-    from devices.things.platform import twin_td
+    from devices.things.platform_things import twin_td
 
     assert "objectPresence is a beam reading, read-only" in twin_td("infrared-sensor-1").description
     assert "every change" in twin_td("infrared-sensor-2").description
@@ -128,7 +128,7 @@ def test_twin_tds_say_their_deviations_in_their_descriptions():
 def test_the_declared_location_range_holds_every_position_the_uarm_can_take():
     """node-wot validates read values: `location` must never leave its declared ranges (all motor angles)."""
     from devices.sim.uarm import BETWEEN_ARMS_DEG, LIMITS_DEG, real_fk
-    from devices.things.platform import LOCATION_RANGE
+    from devices.things.platform_things import LOCATION_RANGE
 
     grids = [np.radians(np.linspace(*LIMITS_DEG[j], n)) for j, n in
              (("base", 61), ("lower_arm", 160), ("upper_arm", 160))]
@@ -191,7 +191,7 @@ def test_the_world_td_links_the_scene_and_each_robots_urdf(lab):
 
 
 def test_the_comparison_sees_a_changed_bound_a_lost_flag_and_a_missing_affordance():
-    from devices.things.platform import twin_td
+    from devices.things.platform_things import twin_td
 
     td = twin_td("conveyor-belt-1").to_dict()
     td["properties"]["speed"]["maximum"] = 200

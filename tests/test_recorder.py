@@ -9,7 +9,7 @@ import pytest
 from labs import start_lab, stop_process
 
 from mesh.recorder import mapping
-from mesh.wot.td import DataSchema
+from mesh.wot.thing_description import DataSchema
 
 RERUN = str(Path(sys.executable).with_name("rerun"))
 LEFT = "/things/light-left"

@@ -21,10 +21,10 @@ from test_recorder import RERUN, read_column, scalars, texts, wait_for_line
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.relations import MODEL, POINTS, WORKSPACE
 from mesh.messages.relations import TWIN as TWIN_REL
-from mesh.messages.scene import Pose, RobotModel, SceneDescription, TwinDescription
+from mesh.messages.scene_description import Pose, RobotModel, SceneDescription, TwinDescription
 from mesh.recorder.robots import DrawnWorkspace, RobotDrawer, RobotFiles, joint_units, link_file, to_twin_frame
-from mesh.recorder.scene import SceneDrawer, SceneFiles, lab_blueprint
-from mesh.wot.td import DataSchema, Link, PropertyAffordance, ThingDescription
+from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles, lab_blueprint
+from mesh.wot.thing_description import DataSchema, Link, PropertyAffordance, ThingDescription
 
 UR10_URDF = (REPO / "tdgen" / "robot" / "models" / "ur10.urdf").read_text()
 JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
@@ -327,8 +327,8 @@ def test_the_blueprint_hides_workspaces_in_the_lab_view_and_shows_them_in_their_
 
 # --- a real robot Thing --------------------------------------------------------------------------
 def _robot_missing() -> str | None:
-    if importlib.util.find_spec("devices.things.robot") is None:
-        return "`twinmesh robot` not written yet: no devices/things/robot.py"
+    if importlib.util.find_spec("devices.things.robot_thing") is None:
+        return "`twinmesh robot` not written yet: no devices/things/robot_thing.py"
     return None
 
 
@@ -379,11 +379,11 @@ def _wait_workspace(lab, thing: str, timeout: float) -> dict:
 
 def _safe_target(lab, td: dict) -> dict[str, float]:
     """A collision-free sampled point whose ten nearest samples are free too, near the free points' middle."""
-    from mesh.fabric.client import MeshClient
+    from mesh.fabric.mesh_client import MeshClient
     from mesh.fabric.session import open_session
     from mesh.recorder.robots import read_points
     from mesh.wot.problem import Unavailable
-    from mesh.wot.td import decode_td
+    from mesh.wot.thing_description import decode_td
 
     settings = MeshSettings(connect=(lab.endpoint,))
     with open_session(settings) as session:
@@ -413,7 +413,7 @@ def test_a_mesh_based_urdf_is_drawn_with_its_meshes(tmp_path):
     import pybullet_data
     from rerun.chunk import RrdReader
 
-    from mesh.recorder.scene import DrawnRobot
+    from mesh.recorder.scene_drawer import DrawnRobot
 
     urdf = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
     robot = DrawnRobot.load("panda", urdf.read_text(), "world/robots/panda", urdf.parent)
@@ -432,7 +432,7 @@ def test_a_mesh_based_urdf_is_drawn_with_its_meshes(tmp_path):
 
 
 def test_a_mesh_that_cannot_be_found_is_named_with_where_it_was_looked_for(tmp_path):
-    from mesh.recorder.scene import DrawnRobot
+    from mesh.recorder.scene_drawer import DrawnRobot
 
     urdf = ('<robot name="r"><link name="base"><visual><geometry><mesh filename="package://arm/meshes/base.stl"/>'
             '</geometry></visual></link></robot>')

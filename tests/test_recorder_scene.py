@@ -16,9 +16,9 @@ from labs import REPO, start_lab, stop_process
 from test_recorder import RERUN, read_column, scalars, texts, wait_for_line
 
 from mesh.fabric.settings import MeshSettings
-from mesh.messages.scene import Body, Pose, Poses, RobotModel, SceneDescription
-from mesh.recorder.scene import SceneDrawer, SceneFiles
-from mesh.wot.td import PropertyAffordance, ThingDescription
+from mesh.messages.scene_description import Body, Pose, Poses, RobotModel, SceneDescription
+from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles
+from mesh.wot.thing_description import PropertyAffordance, ThingDescription
 
 UARM_URDF = (REPO / "tdgen" / "robot" / "models" / "uarm_swift_pro.urdf").read_text()
 UARM_BASE = Pose((-0.375, 0.0, 0.75))
@@ -218,8 +218,8 @@ def _platform_missing() -> str | None:
 
 @pytest.mark.skipif(_platform_missing() is not None, reason=str(_platform_missing()))
 def test_cube_workflow_recording_shows_both_arms_and_the_cube_round_trip(tmp_path):
-    from devices.sim.layouts.platform import LAYOUT
-    from devices.sim.layouts.platform import UARM_BASE as PLATFORM_UARM
+    from devices.sim.layouts.platform_layout import LAYOUT
+    from devices.sim.layouts.platform_layout import UARM_BASE as PLATFORM_UARM
 
     path = tmp_path / "platform.rrd"
     lab = start_lab(tmp_path, "iot-platform", http=False, things={"world", "uarm", "dobot"},

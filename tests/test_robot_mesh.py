@@ -23,7 +23,7 @@ from interop import npm
 from labs import mesh_client, start_robot_lab, stop_process
 from tdschema import assert_valid_td
 
-from devices.sim.robot import workspace_from_csv
+from devices.sim.robot_twin import workspace_from_csv
 from mesh.messages.relations import MODEL, POINTS, SCENE, TWIN, WORKSPACE
 
 SAMPLES = "6000"

@@ -11,8 +11,8 @@ import pytest
 
 from devices.planning.moves import MovePlan
 from devices.planning.paths import STEP_MM, NoPath, PathChecker, find_path
-from devices.sim.robot import Base, RobotTwin, workspace_from_csv
-from devices.sim.world import World
+from devices.sim.pybullet_world import World
+from devices.sim.robot_twin import Base, RobotTwin, workspace_from_csv
 from mesh.wot.problem import Problem
 from tdgen.generate import generate
 from tdgen.robot.collision import CollisionWorld

@@ -14,15 +14,15 @@ from scipy.spatial.transform import Rotation
 from tdschema import assert_valid_td
 
 from devices.planning.moves import TdFrame
-from devices.sim.robot import Base, RobotTwin, workspace_from_csv
-from devices.sim.world import World
-from devices.things.robot import RobotThing, provisional_td
-from mesh.fabric.client import MeshClient
+from devices.sim.pybullet_world import World
+from devices.sim.robot_twin import Base, RobotTwin, workspace_from_csv
+from devices.things.robot_thing import RobotThing, provisional_td
+from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.relations import MODEL, POINTS, SCENE, TWIN, WORKSPACE
 from mesh.wot.problem import Problem
-from mesh.wot.td import decode_td
+from mesh.wot.thing_description import decode_td
 from tdgen.cache import cache_key as twin_hash
 from tdgen.generate import generate
 from tdgen.robot.calibration import fit_calibration
@@ -215,7 +215,7 @@ CACHED_TD = """
 import json, sys
 from pathlib import Path
 import msgspec
-from mesh.messages.scene import TwinDescription
+from mesh.messages.scene_description import TwinDescription
 from tdgen.cache import ArtefactCache
 from tdgen.service import artefact_key, make_artefacts
 twin = msgspec.json.decode(Path(sys.argv[1]).read_bytes(), type=TwinDescription)
@@ -242,7 +242,7 @@ def test_a_cached_td_is_used_only_while_the_code_that_made_it_is_the_same(tmp_pa
 
     from labs import REPO
 
-    from mesh.messages.scene import Pose, TwinDescription
+    from mesh.messages.scene_description import Pose, TwinDescription
 
     urdf = REPO / "tdgen" / "robot" / "models" / "ur10.urdf"
     twin = TwinDescription(robot="ur10", urdf=str(urdf), urdf_sha256=hashlib.sha256(urdf.read_bytes()).hexdigest(),

@@ -99,7 +99,7 @@ def device(lab):
 
 @pytest.fixture(scope="module")
 def zenoh(lab):
-    from mesh.fabric.client import MeshClient
+    from mesh.fabric.mesh_client import MeshClient
     from mesh.fabric.session import open_session
     from mesh.fabric.settings import MeshSettings
 
@@ -152,7 +152,7 @@ def test_action_input_oneof(lab, device, zenoh):
 
 def _lost(source, served, path="td"):
     """Where `served` lacks or changed a term of `source` (forms, links and security are the server's)."""
-    from mesh.wot.td import REWRITTEN_TERMS
+    from mesh.wot.thing_description import REWRITTEN_TERMS
 
     if isinstance(source, dict):
         if not isinstance(served, dict):

@@ -19,7 +19,7 @@ import msgspec
 import pytest
 import zenoh
 
-from mesh.fabric.client import MeshClient
+from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
 from tests.labs import Lab, start_lab, stop_process, twinmesh_cmd

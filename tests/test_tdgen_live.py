@@ -8,7 +8,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from mesh.messages.scene import Pose, TwinDescription
+from mesh.messages.scene_description import Pose, TwinDescription
 from tdgen.cache import ArtefactCache
 from tdgen.generate import collision_warnings
 from tdgen.live import LiveSamples, NeedsGeneration

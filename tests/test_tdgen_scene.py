@@ -183,12 +183,12 @@ def test_a_worlds_scene_json_is_a_scene_for_one_of_its_robots():
 
 
 def test_the_shipped_iot_platform_scene_is_what_the_platform_world_serves(tmp_path):
-    from devices.sim.layouts.platform import write_scene_json
+    from devices.sim.layouts.platform_layout import write_scene_json
 
     write_scene_json(tmp_path / "now.json")
     shipped = msgspec.json.decode((SCENES_DIR / "iot-platform.json").read_bytes())
     assert msgspec.json.decode((tmp_path / "now.json").read_bytes()) == shipped, \
-        "regenerate it: python -m devices.sim.layouts.platform"
+        "regenerate it: python -m devices.sim.layouts.platform_layout"
 
 
 def test_the_uarm_generated_where_it_stands_keeps_above_its_table(tmp_path):

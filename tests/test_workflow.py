@@ -40,7 +40,7 @@ def fresh(client):
 
 
 def slot_position(i: int) -> np.ndarray:
-    from devices.sim.layouts.platform import LAYOUT, UARM_BASE
+    from devices.sim.layouts.platform_layout import LAYOUT, UARM_BASE
 
     real = [LAYOUT.warehouse_x, LAYOUT.warehouse_slots_y[i], LAYOUT.warehouse_floor + LAYOUT.cube / 2]
     return np.asarray(UARM_BASE) + np.asarray(real) / 1000.0

@@ -8,7 +8,7 @@ import click
 from tqdm import tqdm
 
 from devices.apps.evaluation import TargetsError, evaluate_ik, read_targets, summary, write_table
-from mesh.cli.client import consumer_for
+from mesh.cli.consumers import consumer_for
 from mesh.cli.exits import problem_exit
 from mesh.wot.problem import Problem
 

@@ -15,13 +15,13 @@ import msgspec
 from devices.lab import entries
 from devices.lab.supervisor import ProcessSpec, Supervisor, die_with_parent, follows_its_starter
 from mesh.cli import commands, completion
-from mesh.cli.client import mesh_client
 from mesh.cli.commands import AUTH_HELP, checked_auth, echo_json, host_port, parse_json
+from mesh.cli.consumers import mesh_client
 from mesh.cli.exits import UNREACHABLE, CommandFailed, usage_exit
 from mesh.cli.native_output import quiet_pybullet_import, separate_native_stdout
-from mesh.fabric.client import MeshClient
+from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.settings import DEFAULT_ENDPOINT, MeshSettings, router_listen
-from mesh.messages.scene import DEFAULT_SAMPLES
+from mesh.messages.scene_description import DEFAULT_SAMPLES
 from mesh.process import SHOW_NATIVE, set_title
 from mesh.wot.problem import Problem
 from tdgen.cli.counts import SampleCount
@@ -68,7 +68,7 @@ def _workflow_cli():
 
 
 def _robot_cli():
-    from devices.cli import robot
+    from devices.cli import robot_command as robot
 
     return robot
 
@@ -404,7 +404,7 @@ def _guard_real(specs: list[ProcessSpec], scene: str, real: tuple[str, ...], acc
     """Take in every real device's TD (one that cannot be had starts nothing) and give them to the scene's
     world process; the Things this adds to the lab (`<device>-real`)."""
     from devices.things.guard import RealDevice
-    from devices.things.platform import PLATFORM_DEVICES
+    from devices.things.platform_things import PLATFORM_DEVICES
     from mesh.bridge.intake import IntakeError
     from mesh.bridge.run import parse_remote, take_in_all
 
@@ -557,7 +557,7 @@ def wait(settings: MeshSettings, timeout: float, things: tuple[str, ...]) -> Non
 
 
 def _speed(value: str) -> float | None:
-    from devices.sim.world import parse_speed
+    from devices.sim.pybullet_world import parse_speed
 
     try:
         return parse_speed(value)

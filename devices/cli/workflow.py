@@ -4,7 +4,7 @@ from __future__ import annotations
 import click
 
 from devices.apps.cube_workflow import SENSOR_TIMEOUT, Step, StepFailed, cube_workflow
-from mesh.cli.client import consumer_for
+from mesh.cli.consumers import consumer_for
 
 
 # --- the commands ----------------------------------------------------------------------------------

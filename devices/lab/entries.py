@@ -50,7 +50,7 @@ def lights(settings: MeshSettings, stop: threading.Event, **kwargs: Any) -> None
 
 
 def robot(settings: MeshSettings, stop: threading.Event, **kwargs: Any) -> None:
-    from devices.things.robot import run
+    from devices.things.robot_thing import run
 
     run(settings, stop, **kwargs)
 

@@ -12,7 +12,7 @@ from contextlib import ExitStack
 from typing import TYPE_CHECKING, Sequence
 
 from mesh.fabric.settings import MeshSettings
-from mesh.messages.scene import DEFAULT_SAMPLES
+from mesh.messages.scene_description import DEFAULT_SAMPLES
 
 if TYPE_CHECKING:
     from devices.things.guard import RealDevice
@@ -34,8 +34,8 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
     from devices.things.guard import guard_robot, serve_platform
     from devices.things.lights import bind_light, light_td
     from devices.things.pan_tilt import bind_pan_tilt, pan_tilt_td
-    from devices.things.robot import RobotThing
-    from devices.things.world import WorldThing
+    from devices.things.robot_thing import RobotThing
+    from devices.things.world_thing import WorldThing
     from mesh.fabric.server import ExposedThing
     from mesh.fabric.session import open_session
 

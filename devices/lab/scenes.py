@@ -9,7 +9,7 @@ import os
 
 from devices.lab import entries
 from devices.lab.supervisor import ProcessSpec
-from mesh.messages.scene import DEFAULT_SAMPLES
+from mesh.messages.scene_description import DEFAULT_SAMPLES
 
 FLEET = "fleet"
 

@@ -7,7 +7,7 @@ within the joint limits (`unreachable`), by a configuration free of collision (`
 a collision-free joint path from where the robot stands (`no-path`); with a collision-probability
 gate set, a target whose sampled neighbours collide too often is refused (`collision-risk`). Paths
 come from `devices.planning.paths` (a checked straight segment, else OMPL). The twin that plays the
-plans (`devices.sim.robot.RobotTwin`) keeps the motion, the workspace and the listeners.
+plans (`devices.sim.robot_twin.RobotTwin`) keeps the motion, the workspace and the listeners.
 """
 from __future__ import annotations
 

@@ -18,8 +18,8 @@ import threading
 import numpy as np
 import pybullet as pb
 
+from devices.sim.pybullet_world import Snapshot, World, static_box
 from devices.sim.vec import Vec
-from devices.sim.world import Snapshot, World, static_box
 from mesh.wot.problem import BadInput
 
 MAX_SPEED_MM_S = 60.0

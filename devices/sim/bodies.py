@@ -1,4 +1,4 @@
-"""How a pybullet world describes its bodies for the recorder (the `mesh.messages.scene` contract).
+"""How a pybullet world describes its bodies for the recorder (the `mesh.messages.scene_description` contract).
 
 Scenes build their furniture from pybullet primitives; this turns a body id back into the
 `Body` a recorder draws (shape, size, pose, colour), so a scene never states its geometry twice.
@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pybullet as pb
 
-from mesh.messages.scene import Body, Pose
+from mesh.messages.scene_description import Body, Pose
 
 
 def pose(p: tuple) -> Pose:

@@ -22,7 +22,7 @@ from devices.sim.vec import Vec
 from tdgen.robot.model import ROBOTS_DIR
 
 if TYPE_CHECKING:
-    from devices.sim.world import Pose, World
+    from devices.sim.pybullet_world import Pose, World
 
 MODELS = ROBOTS_DIR
 

@@ -22,8 +22,8 @@ import numpy as np
 import pybullet as pb
 
 from devices.sim.compensation import DOBOT_MAIN_JOINTS, DOBOT_PASSIVE_JOINTS, DOBOT_URDF, KinematicArm, dobot_passive
+from devices.sim.pybullet_world import PEAK_SPEED, Interpolation, Snapshot, World, attach, body_pose, place
 from devices.sim.vec import Vec
-from devices.sim.world import PEAK_SPEED, Interpolation, Snapshot, World, attach, body_pose, place
 from mesh.wot.problem import Refused
 
 REAR_ARM, FOREARM = 135.0, 147.0           # mm

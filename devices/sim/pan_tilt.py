@@ -32,9 +32,9 @@ import numpy as np
 import pybullet as pb
 
 from devices.sim.compensation import KinematicArm
+from devices.sim.pybullet_world import PEAK_SPEED, Interpolation, MotionCancelled, Snapshot, World
 from devices.sim.sensors import reading_of
 from devices.sim.vec import Vec
-from devices.sim.world import PEAK_SPEED, Interpolation, MotionCancelled, Snapshot, World
 from mesh.wot.problem import BadInput
 from tdgen.robot.model import ROBOTS_DIR
 

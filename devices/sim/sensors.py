@@ -17,8 +17,8 @@ from typing import Callable
 import pybullet as pb
 
 from devices.sim.listeners import Listeners
+from devices.sim.pybullet_world import Snapshot, World, static_box
 from devices.sim.vec import Vec
-from devices.sim.world import Snapshot, World, static_box
 
 RAY_MASK = 1  # pybullet's default collision group; robot links are in none
 

@@ -24,8 +24,8 @@ import numpy as np
 import pybullet as pb
 
 from devices.sim.compensation import UARM_MAIN_JOINTS, UARM_PASSIVE_JOINTS, UARM_URDF, KinematicArm, uarm_passive
+from devices.sim.pybullet_world import PEAK_SPEED, Interpolation, Snapshot, World, attach
 from devices.sim.vec import Vec
-from devices.sim.world import PEAK_SPEED, Interpolation, Snapshot, World, attach
 from mesh.wot.problem import Refused
 
 # firmware geometry (mm) and motor limits (deg), Swift Pro firmware uarm_coord_convert.h

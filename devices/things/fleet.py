@@ -23,7 +23,7 @@ from devices.things.binding import Cleanup, nothing_to_undo, serve
 from mesh.fabric.server import ExposedThing
 from mesh.fabric.settings import MeshSettings
 from mesh.wot import units
-from mesh.wot.td import ThingDescription, decode_td, thing_id
+from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +67,7 @@ def split(count: int, parts: int) -> list[tuple[int, int]]:
 
 @lru_cache(maxsize=None)
 def _reference_td(kind: str) -> str:
-    from devices.things.platform import twin_td_json
+    from devices.things.platform_things import twin_td_json
 
     return twin_td_json(REFERENCE[kind]).decode()
 
@@ -123,7 +123,7 @@ def bind_fleet_device(thing: ExposedThing, device: FleetDevice, ticker, stations
     """`device`'s behaviour on `thing` (its TD is `device_td`'s). A station's belt, beam and colour sensor
     share one model (`stations`, by station number)."""
     from devices.sim.stations import Station
-    from devices.things.platform import bind_belt, bind_color_sensor, bind_infrared
+    from devices.things.platform_things import bind_belt, bind_color_sensor, bind_infrared
 
     kind, n = device.kind, device.station
     if kind == "light":

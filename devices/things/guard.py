@@ -29,7 +29,7 @@ from devices.sim.dobot import Dobot
 from devices.sim.uarm import Uarm
 from mesh.bridge.remote import RemoteThing
 from mesh.fabric.server import ExposedThing
-from mesh.http.client import HttpClient
+from mesh.http.http_client import HttpClient
 from mesh.wot.consumed import NOTHING
 from mesh.wot.problem import BadInput, Problem, Refused
 from mesh.wot.validate import validate
@@ -167,7 +167,7 @@ def dobot_guard(thing: ExposedThing, remote: RemoteThing, dobot: Dobot) -> Guard
 
 
 def robot_guard(robot: Any, remote: RemoteThing) -> Guard:
-    """A robot Thing's moves (`devices.things.robot.RobotThing`) checked and planned on the twin first,
+    """A robot Thing's moves (`devices.things.robot_thing.RobotThing`) checked and planned on the twin first,
     exactly as `planMove` answers (a refusal is 422 with its reason). Inputs go as they are: they are in
     the robot's TD frame, which is the real robot's when the twin was given its calibration."""
     return Guard(robot.thing, remote, {"moveToJointPosition": lambda v: robot.plan({"joints": v}),
@@ -275,7 +275,7 @@ def serve_platform(stack: Any, settings: Any, platform: Any, real: list[RealDevi
     each with its real device also on the mesh as `<slug>-real` (the recorder, the live view and the
     control page show real and twin side by side)."""
     from devices.things.binding import serve
-    from devices.things.platform import PLATFORM_DEVICES, bind_device, platform_thing, twin_td
+    from devices.things.platform_things import PLATFORM_DEVICES, bind_device, platform_thing, twin_td
     from mesh.bridge.bridged import BridgedThing
     from mesh.fabric.session import open_session
 

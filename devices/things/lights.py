@@ -11,7 +11,7 @@ from typing import Callable
 from devices.things.binding import Cleanup, nothing_to_undo, serve
 from mesh.fabric.server import ExposedThing
 from mesh.wot import units
-from mesh.wot.td import ThingDescription, decode_td, thing_id
+from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
 
 LIGHTS = ("light-left", "light-right")
 

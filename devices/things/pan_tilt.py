@@ -18,7 +18,7 @@ from devices.things.binding import Cleanup
 from mesh.fabric.server import ExposedThing
 from mesh.fabric.state_publisher import StatePublisher
 from mesh.wot import units
-from mesh.wot.td import ThingDescription, decode_td, thing_id
+from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
 
 TD = Path(__file__).parent / "tds" / "pan-tilt.json"
 MOVES = ("moveTo", "panTo", "tiltTo", "goHome", "stopMovement")  # answer when the motion is over

@@ -13,7 +13,7 @@ from urllib.parse import urljoin
 import msgspec
 
 from mesh.wot.problem import Problem
-from mesh.wot.td import decode_td
+from mesh.wot.thing_description import decode_td
 
 TD_SCHEMA = "td-1.1-json-schema-validation.json"  # W3C's, shipped (mesh/wot/schemas/SOURCE.md)
 
@@ -28,7 +28,7 @@ def is_url(source: str) -> bool:
 
 def fetch_document(source: str, client: Any | None = None) -> dict[str, Any]:
     """The JSON object at `source`: a file, or an http(s) URL fetched with `client`
-    (`mesh.http.client.HttpClient`: its credentials and certificate checks)."""
+    (`mesh.http.http_client.HttpClient`: its credentials and certificate checks)."""
     if is_url(source):
         if client is None:
             raise IntakeError(f"{source}: a URL needs an HTTP client")

@@ -8,7 +8,7 @@ import logging
 from typing import Any, Callable
 from urllib.parse import urlsplit
 
-from mesh.http.client import HttpClient
+from mesh.http.http_client import HttpClient
 from mesh.wot.consumed import NOTHING, Callback, ConsumedThing, Subscription
 from mesh.wot.problem import BadGateway, NotAllowed, NotFound, Problem, Unavailable
 

@@ -13,7 +13,7 @@ from mesh.bridge.intake import IntakeError, take_in
 from mesh.bridge.remote import RemoteThing
 from mesh.fabric.keys import check_slug
 from mesh.fabric.settings import MeshSettings
-from mesh.http.client import HttpClient
+from mesh.http.http_client import HttpClient
 
 log = logging.getLogger(__name__)
 

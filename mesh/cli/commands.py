@@ -9,8 +9,8 @@ import click
 import msgspec
 
 from mesh.cli import completion
-from mesh.cli.client import mesh_client
-from mesh.fabric.client import NOTHING
+from mesh.cli.consumers import mesh_client
+from mesh.fabric.mesh_client import NOTHING
 from mesh.fabric.settings import MeshSettings
 from mesh.process import install_stop_handlers
 

@@ -23,7 +23,7 @@ def _settings(ctx: click.Context) -> MeshSettings:
 
 
 def _ask(ctx: click.Context, question) -> list[str]:
-    from mesh.fabric.client import MeshClient
+    from mesh.fabric.mesh_client import MeshClient
     from mesh.fabric.session import one_shot_session
     from mesh.wot.problem import Problem
 

@@ -44,7 +44,7 @@ from mesh.messages.lab import ActionCall
 from mesh.wot.invocation import ID, Invocations
 from mesh.wot.payload import decode_json
 from mesh.wot.problem import BadInput, NotAllowed, NotFound, Problem
-from mesh.wot.td import ThingDescription, decode_td, keep_terms, zenoh_forms
+from mesh.wot.thing_description import ThingDescription, decode_td, keep_terms, zenoh_forms
 from mesh.wot.validate import prepare, validate
 
 log = logging.getLogger(__name__)

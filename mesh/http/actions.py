@@ -26,7 +26,7 @@ from mesh.http.context import affordance, base_url, registry, thing_td
 from mesh.http.inputs import ABSENT, encode, read_input
 from mesh.wot.invocation import ID, ActionStatus
 from mesh.wot.problem import BadInput, NotFound
-from mesh.wot.td import JSON
+from mesh.wot.thing_description import JSON
 
 _TRUE = ("", "true", "1", "yes")
 

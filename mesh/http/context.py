@@ -12,7 +12,7 @@ from mesh.http.credentials import Auth
 from mesh.http.gateway import SLUG, Registry
 from mesh.wot.names import unescaped
 from mesh.wot.problem import NotFound
-from mesh.wot.td import NOSEC, AffordanceKind, Security, ThingDescription
+from mesh.wot.thing_description import NOSEC, AffordanceKind, Security, ThingDescription
 
 
 def registry(request: Request) -> Registry:

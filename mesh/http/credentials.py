@@ -1,5 +1,5 @@
 """HTTP credentials as `twinmesh up --auth` takes them (`bearer:TOKEN`, `basic:USER:PASS`): parsed once,
-checked by the adapter's middleware, declared in TDs, and sent by the consumer's client (`mesh.http.client`
+checked by the adapter's middleware, declared in TDs, and sent by the consumer's client (`mesh.http.http_client`
 makes them an httpx auth: a TD generator needs no HTTP client)."""
 from __future__ import annotations
 

@@ -32,11 +32,11 @@ import anyio
 import anyio.to_thread
 import msgspec
 
-from mesh.fabric.client import MeshClient, Reply
 from mesh.fabric.directory import Directory
 from mesh.fabric.drain import Drained
 from mesh.fabric.keys import NAME as NAME  # the names a key may hold: the routes check them
 from mesh.fabric.keys import SLUG as SLUG
+from mesh.fabric.mesh_client import MeshClient, Reply
 from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings as MeshSettings  # the adapter's settings, for the server
 from mesh.http.observers import Change, Feed, Observers
@@ -45,7 +45,7 @@ from mesh.http.tdrewrite import served_id, with_types
 from mesh.wot.invocation import ActionStatus
 from mesh.wot.payload import JSON_ERRORS, decode_json
 from mesh.wot.problem import BadGateway, BadInput, NotFound, Problem, Unavailable
-from mesh.wot.td import ThingDescription, decode_td
+from mesh.wot.thing_description import ThingDescription, decode_td
 from mesh.wot.validate import prepare, validate
 
 log = logging.getLogger(__name__)

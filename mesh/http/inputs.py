@@ -13,7 +13,7 @@ from starlette.requests import Request
 
 from mesh.http.problems import TooLarge, UnsupportedMediaType
 from mesh.wot.payload import decode_json
-from mesh.wot.td import DataSchema
+from mesh.wot.thing_description import DataSchema
 from mesh.wot.validate import validate
 
 MAX_BODY = 1 << 20  # 1 MiB: the largest input any affordance of ours needs is a few hundred bytes

@@ -26,7 +26,7 @@ from mesh.http.inputs import ABSENT, encode, read_input
 from mesh.http.problems import method_not_allowed
 from mesh.http.streams import EventStream, long_poll
 from mesh.wot.problem import BadInput, NotFound
-from mesh.wot.td import JSON, DataSchema, PropertyAffordance
+from mesh.wot.thing_description import JSON, DataSchema, PropertyAffordance
 from mesh.wot.validate import validate
 
 

@@ -29,7 +29,7 @@ from starlette.types import Receive, Scope, Send
 from mesh.http.gateway import Registry
 from mesh.http.observers import Change, Feed
 from mesh.wot.problem import Problem
-from mesh.wot.td import JSON
+from mesh.wot.thing_description import JSON
 
 T = TypeVar("T")
 KEEPALIVE = 15.0

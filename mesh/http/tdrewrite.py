@@ -24,7 +24,7 @@ import msgspec
 
 from mesh.wot import units
 from mesh.wot.names import escaped
-from mesh.wot.td import (
+from mesh.wot.thing_description import (
     INVOCATION_ID,
     JSON,
     NOSEC,

@@ -32,7 +32,7 @@ from mesh.http.gateway import DIRECTORY, NAME
 from mesh.http.streams import EventStream
 from mesh.http.tdrewrite import LD_JSON, TD_JSON, directory_td, http_td, served_id
 from mesh.wot.problem import BadInput, NotFound, Problem
-from mesh.wot.td import JSON
+from mesh.wot.thing_description import JSON
 
 
 async def _td_bytes(request: Request, thing: str) -> bytes:

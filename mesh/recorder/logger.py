@@ -13,7 +13,7 @@ Three sides, so that nothing blocks a Zenoh callback and one thread alone owns t
   timelines (`time`: wall clock, `seq`: message number), logs what `mesh.recorder.mapping` makes of
   them and flushes every second; on stop it drains the queue, flushes and closes the file, which
   then has its footer (`rerun rrd verify` passes). The world's scene and its `poses` go to
-  `mesh.recorder.scene.SceneDrawer`, which batches the fast poses into a few writes a second; robot
+  `mesh.recorder.scene_drawer.SceneDrawer`, which batches the fast poses into a few writes a second; robot
   Things, their `getJointposition` values and their workspaces to `mesh.recorder.robots.RobotDrawer`.
   The writer sends the recording's layout (`lab_blueprint`) whenever the set of drawn robots changes.
 
@@ -32,11 +32,11 @@ from typing import Any, NamedTuple
 
 import msgspec
 
-from mesh.fabric.client import MeshClient
 from mesh.fabric.directory import Directory
 from mesh.fabric.keys import Keys
+from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.settings import MeshSettings
-from mesh.messages.scene import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription, TwinDescription
+from mesh.messages.scene_description import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription, TwinDescription
 from mesh.recorder import mapping
 from mesh.recorder.robots import (
     JOINTS_PROPERTY,
@@ -47,9 +47,9 @@ from mesh.recorder.robots import (
     is_robot,
     read_robot,
 )
-from mesh.recorder.scene import SceneDrawer, SceneFiles, lab_blueprint
+from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles, lab_blueprint
 from mesh.wot.problem import BadInput, Problem
-from mesh.wot.td import ThingDescription, decode_td
+from mesh.wot.thing_description import ThingDescription, decode_td
 from mesh.wot.validate import validate
 
 log = logging.getLogger(__name__)

@@ -27,7 +27,7 @@ import msgspec
 import rerun as rr
 
 from mesh.wot import units
-from mesh.wot.td import DataSchema, ThingDescription
+from mesh.wot.thing_description import DataSchema, ThingDescription
 
 MESH_LOG = "mesh/log"
 SWATCH_PIXELS = 8  # the swatch is a tiny image: the 2D view fills it with the colour

@@ -1,6 +1,6 @@
 """Robot Things in a Rerun recording: each drawn from its URDF, animated, with its workspace (SPEC §6).
 
-A robot Thing (`mesh.messages.scene.TwinDescription`) links `twin.json` (`relations.TWIN`: its base pose
+A robot Thing (`mesh.messages.scene_description.TwinDescription`) links `twin.json` (`relations.TWIN`: its base pose
 in the scene frame, its frame and calibration) and its URDF (`rel: "describedby"`); once its workspace is
 generated, also the sampled points (`relations.POINTS`, CSV `x,y,z,collision,<joints>`) and the
 hull (`relations.WORKSPACE`, STL), both in mm in the robot's base frame. The recorder's fetcher thread
@@ -39,11 +39,11 @@ import numpy as np
 import rerun as rr
 
 from mesh.messages import relations
-from mesh.messages.scene import MODEL_REL, TWIN_FILE, TWIN_REL, Pose, TwinDescription
+from mesh.messages.scene_description import MODEL_REL, TWIN_FILE, TWIN_REL, Pose, TwinDescription
 from mesh.recorder.mapping import Entry
-from mesh.recorder.scene import BATCH_AGE, BATCH_ROWS, WORLD, DrawnRobot, SampleBatch, SceneDrawer, thing_robot_path
+from mesh.recorder.scene_drawer import BATCH_AGE, BATCH_ROWS, WORLD, DrawnRobot, SampleBatch, SceneDrawer, thing_robot_path
 from mesh.wot import units
-from mesh.wot.td import ThingDescription
+from mesh.wot.thing_description import ThingDescription
 
 JOINTS_PROPERTY = "getJointposition"
 POINTS_REL = relations.POINTS

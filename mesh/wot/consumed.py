@@ -1,7 +1,7 @@
 """Consuming any Thing from its TD (the WoT Scripting API's ConsumedThing, in Python), protocol-neutral.
 
-A `Consumer` holds one `ProtocolClient` per URI scheme (node-wot's servient: `mesh.http.client`
-speaks http and https, `mesh.fabric.client.ZenohClient` zenoh) and gives a `ConsumedThing` for a
+A `Consumer` holds one `ProtocolClient` per URI scheme (node-wot's servient: `mesh.http.http_client`
+speaks http and https, `mesh.fabric.mesh_client.ZenohClient` zenoh) and gives a `ConsumedThing` for a
 TD. For each operation the Thing takes the first form of the affordance whose `op` matches and
 that a client accepts: node-wot's rule, so a TD's first form is what both clients use. Inputs and
 written values are checked against the TD before they leave (400 without a round trip); errors
@@ -19,7 +19,7 @@ import msgspec
 
 from mesh.wot.invocation import FINISHED, ActionStatus
 from mesh.wot.problem import BadInput, NotFound, Problem, TimedOut
-from mesh.wot.td import Form, ThingDescription, decode_td
+from mesh.wot.thing_description import Form, ThingDescription, decode_td
 from mesh.wot.validate import validate
 
 NOTHING: Any = type("Nothing", (), {"__repr__": lambda self: "NOTHING"})()  # no input, unlike a JSON null

@@ -2,7 +2,7 @@
 the store that keeps a Thing's invocations for a while, and the cancellation a running handler heeds.
 
 Handlers take no cancellation argument: the invocation being served sits in a context variable
-(`current_cancellation()`), and what waits on simulated time (`devices.sim.world.World.play`) stops
+(`current_cancellation()`), and what waits on simulated time (`devices.sim.pybullet_world.World.play`) stops
 when it is cancelled. So every device whose actions move something can be cancelled without
 knowing about invocations, and an action that moves nothing simply completes.
 """

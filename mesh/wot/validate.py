@@ -24,7 +24,7 @@ import fastjsonschema
 import msgspec
 
 from mesh.wot.problem import BadInput
-from mesh.wot.td import DataSchema, ThingDescription
+from mesh.wot.thing_description import DataSchema, ThingDescription
 
 if TYPE_CHECKING:
     from jsonschema import Draft7Validator

@@ -12,8 +12,8 @@ import click
 
 from mesh.cli.exits import usage_exit
 from mesh.http.credentials import Auth
-from mesh.messages.scene import DEFAULT_SAMPLES
-from mesh.wot.td import NOSEC
+from mesh.messages.scene_description import DEFAULT_SAMPLES
+from mesh.wot.thing_description import NOSEC
 from tdgen.cli.arm_options import ArmChoice, arm_options, mount_options
 from tdgen.cli.counts import SampleCount
 from tdgen.generate import Frame, generate
@@ -22,8 +22,8 @@ from tdgen.robot.model import RobotError
 from tdgen.robot.surroundings import RobotPlacement, SceneError, load_scene
 from tdgen.robot.workspace import WorkspaceError
 from tdgen.robot.workspace_check import DEFAULT_K, DEFAULT_MAX_PROBABILITY, DEFAULT_RADIUS_MM, Workspace
+from tdgen.robot_td import slug
 from tdgen.sampling import COLLISION_MODELS
-from tdgen.td import slug
 
 USER_ERRORS = (RobotError, SceneError, CalibrationError, WorkspaceError)
 

@@ -34,7 +34,7 @@ from typing import Union
 
 import msgspec
 
-from mesh.messages.scene import SceneDescription
+from mesh.messages.scene_description import SceneDescription
 
 SCENES_DIR = Path(__file__).parent / "scenes"
 PYBULLET_DATA = "pybullet_data:"
@@ -158,7 +158,7 @@ def scene_file(name_or_path: str | Path) -> Path:
 def load_scene(name_or_path: str | Path, robot: str | None = None) -> Surroundings:
     """Read and check a scene file; file URDF paths come back absolute so the scene is self-contained.
 
-    A world Thing's `scene.json` (mesh.messages.scene.SceneDescription: `robots` and `bodies`
+    A world Thing's `scene.json` (mesh.messages.scene_description.SceneDescription: `robots` and `bodies`
     with a `shape`) is read too: its static bodies, with robot `robot` standing where that scene puts
     it (`from_world_scene`).
     """

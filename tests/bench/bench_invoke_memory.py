@@ -35,7 +35,7 @@ PAUSE = 8.0  # s after each batch (> 2 + 5 s, the timeout of the new queries)
 
 def phase(endpoint: str, mode: str, invokes: int) -> dict:
     """In the child: `invokes` switchOn calls, RSS before and after (MB), elapsed seconds."""
-    from mesh.fabric.client import MeshClient
+    from mesh.fabric.mesh_client import MeshClient
     from mesh.fabric.session import open_session
     from mesh.fabric.settings import MeshSettings
 

@@ -35,8 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, 
 
 from devices.planning.paths import PLANNING_BUDGET_S, STEP_MM, NoPath, PathChecker, find_path  # noqa: E402
 from devices.sim.layouts.lab import LAB, robot_scene  # noqa: E402
-from devices.sim.robot import Base, RobotTwin, placed  # noqa: E402
-from devices.sim.world import World  # noqa: E402
+from devices.sim.pybullet_world import World  # noqa: E402
+from devices.sim.robot_twin import Base, RobotTwin, placed  # noqa: E402
 from mesh.wot.problem import Problem  # noqa: E402
 from tdgen.robot.collision import CONTACT_TOLERANCE, CollisionWorld  # noqa: E402
 from tdgen.robot.ik import solve, solve_many  # noqa: E402

@@ -32,9 +32,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs
 
 from labs import start_lab, stop_process  # noqa: E402
 
-from devices.sim.robot import Base, RobotTwin, workspace_from_csv  # noqa: E402
-from devices.sim.world import PEAK_SPEED, World  # noqa: E402
-from mesh.fabric.client import MeshClient  # noqa: E402
+from devices.sim.pybullet_world import PEAK_SPEED, World  # noqa: E402
+from devices.sim.robot_twin import Base, RobotTwin, workspace_from_csv  # noqa: E402
+from mesh.fabric.mesh_client import MeshClient  # noqa: E402
 from mesh.fabric.session import open_session  # noqa: E402
 from mesh.fabric.settings import MeshSettings  # noqa: E402
 from tdgen.robot.model import Robot  # noqa: E402

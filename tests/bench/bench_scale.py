@@ -108,7 +108,7 @@ def _zenoh_reads(endpoint: str, devices: list[str]) -> list[float]:
     sample = devices[:20] + random.choices(devices, k=READS)
     code = f"""
 import json, sys, time
-from mesh.fabric.client import MeshClient
+from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.session import one_shot_session
 from mesh.fabric.settings import MeshSettings
 targets = {{"belt": "speed", "infrared": "objectPresence", "color": "lux", "light": "lightState", "climate": "humidity"}}

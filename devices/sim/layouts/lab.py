@@ -28,11 +28,11 @@ import pybullet as pb
 
 from devices.sim.bodies import box, pose
 from devices.sim.layouts.obstacles import Obstacle, build, scene_body
-from devices.sim.layouts.platform import IotPlatform
+from devices.sim.layouts.platform_layout import IotPlatform
 from devices.sim.pan_tilt import PAN_TILT_URDF, PanTilt
-from devices.sim.robot import WORKSPACE_WAIT, Base, RobotTwin
-from devices.sim.world import DEFAULT_DT, Snapshot, World, body_pose, static_box
-from mesh.messages.scene import Body, RobotModel, SceneDescription
+from devices.sim.pybullet_world import DEFAULT_DT, Snapshot, World, body_pose, static_box
+from devices.sim.robot_twin import WORKSPACE_WAIT, Base, RobotTwin
+from mesh.messages.scene_description import Body, RobotModel, SceneDescription
 from mesh.wot.problem import Refused
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import BoxBody, Surroundings, build_into
@@ -136,7 +136,7 @@ class IotLab:
         for lamp in self.lamps.values():
             world.add_snapshot_source(lamp.fill)
 
-    # --- what the world Thing asks (devices.things.world.SimulatedScene) ---------------------------
+    # --- what the world Thing asks (devices.things.world_thing.SimulatedScene) ---------------------------
     @property
     def cube_count(self) -> int:
         return self.platform.cube_count
@@ -193,7 +193,7 @@ class IotLab:
         names[self.platform.dobot.arm.body] = "dobot"
         return names
 
-    # --- obstacles (devices.things.world.ObstacleScene) --------------------------------------------
+    # --- obstacles (devices.things.world_thing.ObstacleScene) --------------------------------------------
     def obstacles(self) -> list[Obstacle]:
         return [o for o, _ in self._obstacles.values()]
 

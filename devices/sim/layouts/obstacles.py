@@ -13,7 +13,7 @@ from typing import Any
 import msgspec
 import pybullet as pb
 
-from devices.sim.world import static_box
+from devices.sim.pybullet_world import static_box
 from mesh.wot import units
 from tdgen.robot.surroundings import BoxBody
 

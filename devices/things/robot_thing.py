@@ -4,7 +4,7 @@ The Thing serves the robot TD of SPEC §4 and §7 (`getJointposition`, `getCarte
 observable; `moveToJointPosition`, `moveToCartesianPosition`, which return when the motion is over
 with the collision-free path they took; `planMove`, the same answer without moving; `stop`)
 plus the event `twinChanged {robot, version}` and the files `twin.json` (its
-`mesh.messages.scene.TwinDescription`) and its URDF. The workspace comes from the tdgen service:
+`mesh.messages.scene_description.TwinDescription`) and its URDF. The workspace comes from the tdgen service:
 
 1. before joining, the robot subscribes to the service's `generated` event;
 2. it joins with a provisional TD (joints with their limits, Cartesian values without bounds,
@@ -17,7 +17,7 @@ plus the event `twinChanged {robot, version}` and the files `twin.json` (its
    replaces its TD with the service's (`update_td`: observers of `<prefix>/<robot>/td` see it),
    which links all five files with relative hrefs `files/...` (relations: mesh.messages.relations).
 
-Both TDs come from `tdgen.td.robot_td`, the builder `twinmesh tdgen` uses offline.
+Both TDs come from `tdgen.robot_td.robot_td`, the builder `twinmesh tdgen` uses offline.
 
 When the surroundings change (`RobotTwin.set_scene`), twin.json changes, `twinChanged` goes out,
 the service regenerates and step 4 repeats. Joint states are published while the robot moves, at
@@ -36,18 +36,18 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import msgspec
 
-from mesh.fabric.client import MeshClient
+from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.server import ExposedThing
 from mesh.fabric.settings import MeshSettings
 from mesh.fabric.state_publisher import StatePublisher
-from mesh.messages.scene import DEFAULT_SAMPLES, TWIN_CHANGED, TWIN_FILE, TwinDescription
+from mesh.messages.scene_description import DEFAULT_SAMPLES, TWIN_CHANGED, TWIN_FILE, TwinDescription
 from mesh.wot.problem import BadInput, Problem
-from mesh.wot.td import ThingDescription, decode_td
+from mesh.wot.thing_description import ThingDescription, decode_td
 from tdgen.robot import points_csv
-from tdgen.td import ARTEFACTS, URDF_TYPE, policy, robot_td, slug
+from tdgen.robot_td import ARTEFACTS, URDF_TYPE, policy, robot_td, slug
 
-if TYPE_CHECKING:  # pybullet loads with devices.sim.robot: `twinmesh --help` need not wait for it
-    from devices.sim.robot import RobotTwin
+if TYPE_CHECKING:  # pybullet loads with devices.sim.robot_twin: `twinmesh --help` need not wait for it
+    from devices.sim.robot_twin import RobotTwin
     from tdgen.robot.surroundings import RobotPlacement
     from tdgen.robot.workspace_check import Workspace
 
@@ -72,7 +72,7 @@ def urdf_reference(path: Path) -> str:
     return str(path)
 
 
-# --- TDs (built by tdgen.td, the one builder of robot TDs) -------------------------------
+# --- TDs (built by tdgen.robot_td, the one builder of robot TDs) -------------------------------
 def provisional_td(twin: RobotTwin) -> ThingDescription:
     """The TD before the workspace is known: joint limits, Cartesian values without bounds."""
     return decode_td(robot_td(
@@ -282,7 +282,7 @@ class RobotThing:
                       made: points_csv.Flags | None) -> tuple[Workspace, points_csv.Flags | None]:
         """The check's workspace from a points.csv (`points`, or the one `made` from a digest, after a scene
         change), and where its flags are. The same samples with other flags keep the points and their k-d tree."""
-        from devices.sim.robot import workspace_from_csv
+        from devices.sim.robot_twin import workspace_from_csv
 
         now = self.twin.workspace
         if made is not None:
@@ -319,8 +319,8 @@ def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | No
     reached with `access`. `collision_model` "fast" or "exact" decides collisions for the workspace's
     samples, the target checks and the planner alike.
     """
-    from devices.sim.robot import WORKSPACE_WAIT, Base, RobotTwin
-    from devices.sim.world import World
+    from devices.sim.pybullet_world import World
+    from devices.sim.robot_twin import WORKSPACE_WAIT, Base, RobotTwin
     from mesh.fabric.session import open_session
     from tdgen.robot.calibration import load_calibration
     from tdgen.robot.model import Robot

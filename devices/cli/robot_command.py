@@ -4,17 +4,17 @@ from __future__ import annotations
 import click
 import msgspec
 
-from devices.things.robot import run
+from devices.things.robot_thing import run
 from mesh.cli.exits import usage_exit
 from mesh.fabric.settings import MeshSettings
-from mesh.messages.scene import DEFAULT_SAMPLES
+from mesh.messages.scene_description import DEFAULT_SAMPLES
 from tdgen.cli.arm_options import ArmChoice, arm_options, mount_options
 from tdgen.cli.counts import SampleCount
 from tdgen.robot.surroundings import RobotPlacement
 
 
 def _speed(value: str) -> float | None:
-    from devices.sim.world import parse_speed
+    from devices.sim.pybullet_world import parse_speed
 
     try:
         return parse_speed(value)

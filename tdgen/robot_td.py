@@ -14,9 +14,9 @@ import numpy as np
 
 from mesh.http.tdrewrite import http_td
 from mesh.messages import relations
-from mesh.messages.scene import TWIN_CHANGED, TWIN_FILE
+from mesh.messages.scene_description import TWIN_CHANGED, TWIN_FILE
 from mesh.wot import units
-from mesh.wot.td import (
+from mesh.wot.thing_description import (
     JSON,
     NOSEC,
     TD_CONTEXT,

@@ -42,7 +42,7 @@ from devices.sim.uarm import Uarm
 from devices.things.binding import Cleanup, nothing_to_undo
 from mesh.fabric.keys import Keys
 from mesh.fabric.server import ExposedThing
-from mesh.wot.td import ThingDescription, decode_td, thing_id
+from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
 
 TDS = Path(__file__).parent / "tds"
 PLATFORM_DEVICES = ("dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2",

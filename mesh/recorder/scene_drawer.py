@@ -1,6 +1,6 @@
 """How a simulated world looks in a Rerun recording: its scene drawn, its poses animated (SPEC §6).
 
-The `world` Thing (`mesh.messages.scene`) says what the lab looks like (`scene.json` and the robots'
+The `world` Thing (`mesh.messages.scene_description`) says what the lab looks like (`scene.json` and the robots'
 URDFs) and, in its `poses` property, where everything is at each instant of simulated time.
 `SceneDrawer` turns both into Rerun data. It is owned by the recorder's writer thread and writes to
 its RecordingStream. Poses may come fast (a world at `--speed max`), and one `log` call per value
@@ -40,7 +40,7 @@ import numpy as np
 import rerun as rr
 from rerun.urdf import UrdfJoint, UrdfTree
 
-from mesh.messages.scene import Body, Pose, Poses, RobotModel, SceneDescription
+from mesh.messages.scene_description import Body, Pose, Poses, RobotModel, SceneDescription
 from mesh.recorder import mapping
 from mesh.recorder.mapping import Entry, entity_path
 from mesh.urdf_resources import with_absolute_meshes

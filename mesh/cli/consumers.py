@@ -10,7 +10,7 @@ import click
 
 from mesh import consumer
 from mesh.cli.exits import problem_exit
-from mesh.fabric.client import MeshClient
+from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.settings import MeshSettings
 from mesh.wot.problem import Problem
 

@@ -21,7 +21,7 @@ from mesh.http.credentials import parse_auth as parse_credentials
 from mesh.wot.consumed import NOTHING, Callback
 from mesh.wot.invocation import ActionStatus
 from mesh.wot.problem import BadGateway, Problem, TimedOut, Unavailable
-from mesh.wot.td import Form
+from mesh.wot.thing_description import Form
 
 DEFAULT_METHODS = {"readproperty": "GET", "writeproperty": "PUT", "invokeaction": "POST",
                    "readallproperties": "GET", "readmultipleproperties": "GET", "writeallproperties": "PUT",

@@ -20,7 +20,7 @@ from mesh.wot.consumed import NOTHING, Callback
 from mesh.wot.invocation import FINISHED, ID, ActionStatus
 from mesh.wot.payload import JSON_ERRORS
 from mesh.wot.problem import BadGateway, NotFound, Problem, TimedOut, Unavailable
-from mesh.wot.td import AffordanceKind, Form, ThingDescription, decode_td
+from mesh.wot.thing_description import AffordanceKind, Form, ThingDescription, decode_td
 
 POLL = 2.0  # s one status query of a synchronous invocation waits for its end, at most
 

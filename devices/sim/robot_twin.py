@@ -32,9 +32,9 @@ import numpy as np
 from devices.planning.moves import TRACE_STEPS, MovePlan, MovePlanner, TdFrame, xyz
 from devices.planning.paths import PLANNING_BUDGET_S
 from devices.sim.compensation import KinematicArm
+from devices.sim.pybullet_world import PEAK_SPEED, PathMotion, Snapshot, World
 from devices.sim.vec import Vec
-from devices.sim.world import PEAK_SPEED, PathMotion, Snapshot, World
-from mesh.messages.scene import Pose, TwinDescription
+from mesh.messages.scene_description import Pose, TwinDescription
 from mesh.wot.invocation import ActionCancelled
 from mesh.wot.problem import BadInput, Problem
 from tdgen.robot import points_csv
@@ -254,7 +254,7 @@ class RobotTwin:
             self.world.run(lambda: self._apply(self.home))
 
     def description(self, urdf: str, urdf_sha256: str, urdf_file: str, samples: int, seed: int = 0) -> TwinDescription:
-        """What the tdgen service generates this robot's TD from (mesh.messages.scene contract)."""
+        """What the tdgen service generates this robot's TD from (mesh.messages.scene_description contract)."""
         cal = self.frame.calibration
         scene = msgspec.to_builtins(self.planner.scene)
         scene.pop("robot", None)

@@ -1,6 +1,6 @@
 """The `world` Thing of a simulated scene: poses for the recorder, the scene description, speed and reset.
 
-The contract with the recorder is `mesh.messages.scene`: an observable property `poses` (a `Poses`)
+The contract with the recorder is `mesh.messages.scene_description`: an observable property `poses` (a `Poses`)
 and a file `scene.json` (a `SceneDescription`), plus each robot's URDF as a file. Here:
 
 - `poses` publishes the latest world snapshot when something moved (a body by more than 0.5 mm or
@@ -37,15 +37,15 @@ import msgspec
 
 from devices.sim.bodies import pose as _pose
 from devices.sim.layouts.obstacles import OBSTACLE_SCHEMA, Obstacle
-from devices.sim.world import MAX_SPEED, MIN_SPEED, Snapshot, World
+from devices.sim.pybullet_world import MAX_SPEED, MIN_SPEED, Snapshot, World
 from mesh.fabric.keys import Keys
 from mesh.fabric.server import ExposedThing
 from mesh.messages import relations
-from mesh.messages.scene import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription
+from mesh.messages.scene_description import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription
 from mesh.wot import units
 from mesh.wot.problem import BadInput
-from mesh.wot.td import ThingDescription, decode_td, thing_id
-from tdgen.td import URDF_TYPE
+from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
+from tdgen.robot_td import URDF_TYPE
 
 log = logging.getLogger(__name__)
 

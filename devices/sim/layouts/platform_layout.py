@@ -27,11 +27,11 @@ from devices.sim.belt import Belt
 from devices.sim.bodies import box, pose
 from devices.sim.compensation import DOBOT_URDF, MODELS, UARM_URDF
 from devices.sim.dobot import CUBE_SIZE, Cube, Dobot, Warehouse, make_cube
+from devices.sim.pybullet_world import DEFAULT_DT, Snapshot, World, body_pose, place, static_box
 from devices.sim.sensors import ColorSensor, InfraredSensor
 from devices.sim.uarm import Uarm, write_calibration_csv
 from devices.sim.vec import Vec
-from devices.sim.world import DEFAULT_DT, Snapshot, World, body_pose, place, static_box
-from mesh.messages.scene import Body, RobotModel, SceneDescription
+from mesh.messages.scene_description import Body, RobotModel, SceneDescription
 from tdgen.robot.surroundings import SCENES_DIR
 
 TABLE_HEIGHT = 0.75

@@ -1,0 +1,37 @@
+"""Waiting on events in tests: `eventually` polls a condition until it holds, never a fixed sleep.
+
+A busy machine only makes a wait longer; it never makes a test pass or fail by timing. The timeout
+is a last resort that names what was awaited.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import TypeVar
+
+T = TypeVar("T")
+
+
+def eventually(condition: Callable[[], T], timeout: float = 60.0, interval: float = 0.02, what: str = "") -> T:
+    """Call `condition` until it returns something truthy (returned) or raises nothing falsy in time.
+
+    An AssertionError from `condition` counts as "not yet", so `lambda: check(x)` with asserts inside
+    works; the last one is re-raised at the timeout, which is what a failing test should show.
+    """
+    deadline = time.monotonic() + timeout
+    delay = interval
+    last: BaseException | None = None
+    while True:
+        try:
+            value = condition()
+            if value:
+                return value
+            last = None
+        except AssertionError as e:
+            last = e
+        if time.monotonic() > deadline:
+            if last is not None:
+                raise last
+            raise AssertionError(f"not true after {timeout:.0f} s: {what or getattr(condition, '__name__', condition)}")
+        time.sleep(delay)
+        delay = min(delay * 1.5, 0.5)
