@@ -23,11 +23,11 @@ from interop import npm
 from jsonschema import Draft7Validator
 from labs import start_lab
 
-from devices.sim.schema_values import SchemaValues
+from mesh.wot.schema_values import SchemaValues
 from mesh.wot.problem import BadInput
 from mesh.wot.validate import validate
 
-pytestmark = [pytest.mark.interop, pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.lab, pytest.mark.interop, pytest.mark.timeout(900)]
 
 DATA = Path(__file__).parent / "data"
 CORPUS_DIRS = [DATA / "reference-tds" / "real-lab", *sorted(p for p in (DATA / "td-corpus").iterdir()

@@ -333,7 +333,7 @@ def _run_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], thing
 def _virtual_specs(given: tuple[str, ...], access: Any) -> list[Any]:
     """Every NAME=TD taken in and checked, each value it needs drawn once: one that cannot be served
     starts none of them (exit code 2, one line naming the first problem)."""
-    from devices.sim.schema_values import NoValue
+    from mesh.wot.schema_values import NoValue
     from devices.things.virtual import VirtualSpec, prepare
     from mesh.bridge.intake import IntakeError, take_in
     from mesh.fabric.keys import check_slug

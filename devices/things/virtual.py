@@ -2,7 +2,7 @@
 
 Interface-level simulation, as Eclipse Thingweb's shadow-thing does it: every value the Thing gives
 (a property read, an action's output, an event's data) is drawn from the affordance's own data
-schema and is valid by it (`devices.sim.schema_values`); initial values are the schema's `const`,
+schema and is valid by it (`mesh.wot.schema_values`); initial values are the schema's `const`,
 `default`, `enum` or `examples` where given. Writable properties keep what was written (checked
 first, as for every Thing) and publish the change; read-only numeric properties may drift within
 their bounds (`drift`) so that dashboards see life; every event fires every `events_every` s with
@@ -19,7 +19,7 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from devices.sim.schema_values import NoValue, SchemaValues
+from mesh.wot.schema_values import NoValue, SchemaValues
 from mesh.fabric.keys import Keys
 from mesh.fabric.server import ExposedThing
 
