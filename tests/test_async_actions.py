@@ -14,6 +14,8 @@ from labs import mesh_client, start_robot_lab
 from mesh.wot.invocation import Invocations
 from mesh.wot.problem import BadInput, Conflict, NotFound
 
+pytestmark = pytest.mark.lab
+
 PROBLEM = "application/problem+json"
 JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
 

@@ -17,7 +17,7 @@ import pytest
 from interop import npm
 from labs import start_lab
 
-pytestmark = [pytest.mark.interop, pytest.mark.timeout(600)]
+pytestmark = [pytest.mark.lab, pytest.mark.interop, pytest.mark.timeout(600)]
 
 CREDENTIALS = {"username": "lab", "password": "real:lab pass"}
 AUTH = f"basic:{CREDENTIALS['username']}:{CREDENTIALS['password']}"

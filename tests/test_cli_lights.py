@@ -93,6 +93,8 @@ import sys, time
 sys.path.insert(0, {tests!r})
 from pathlib import Path
 from labs import start_lab
+
+pytestmark = pytest.mark.lab
 lab = start_lab(Path({tmp!r}), "lights", http=False, things={{"light-left"}})
 print(lab.proc.pid, flush=True)
 time.sleep(600)

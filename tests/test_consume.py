@@ -15,6 +15,8 @@ import mesh
 from mesh.wot.consumed import Inbox
 from mesh.wot.problem import BadInput, NotFound, Problem
 
+pytestmark = pytest.mark.lab
+
 WAIT = 5.0  # s for a notification to arrive (hang detection, not a timing goal)
 
 

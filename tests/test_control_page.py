@@ -17,6 +17,8 @@ import pytest
 from browser import chromium
 from labs import start_lab
 
+pytestmark = [pytest.mark.lab, pytest.mark.browser]
+
 THINGS = {"dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2", "color-sensor",
           "uarm", "ur10", "light-left", "light-right", "pan-tilt-1", "pan-tilt-2", "world", "tdgen"}
 LIVE = 2000  # ms a change may take to show on the page (the 2 s)

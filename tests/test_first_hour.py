@@ -12,6 +12,8 @@ import psutil
 import pytest
 from labs import REPO, free_port, spawn_up, start_lab, twinmesh_cmd, wait_ready
 
+pytestmark = pytest.mark.lab
+
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):

@@ -19,6 +19,8 @@ from hypothesis import strategies as st
 from hypothesis_jsonschema import from_schema
 from labs import start_lab
 
+pytestmark = pytest.mark.lab
+
 EXAMPLES = int(os.environ.get("TWINMESH_FUZZ_EXAMPLES", "4"))
 SAMPLES = "3000"
 SCHEMA_KEYS = {"type", "const", "enum", "minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "minLength",

@@ -20,7 +20,7 @@ from labs import free_port, start_lab, twinmesh_cmd
 
 from devices.things.guard import MIRROR_EVERY
 
-pytestmark = [pytest.mark.interop, pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.lab, pytest.mark.interop, pytest.mark.timeout(900)]
 
 CREDENTIALS = {"username": "lab", "password": "guarded"}
 AUTH = f"basic:{CREDENTIALS['username']}:{CREDENTIALS['password']}"

@@ -14,6 +14,8 @@ import pytest
 from labs import REPO, free_port, spawn_up, start_lab, twinmesh_cmd, wait_ready
 from test_recorder import RERUN, scalars, wait_for_line
 
+pytestmark = pytest.mark.lab
+
 PROBLEM = "application/problem+json"
 DEEP = b"[" * 5000 + b"]" * 5000
 HUGE = b"9" * 400

@@ -17,7 +17,7 @@ from devices.things.fleet import fleet_names
 from tests import netns
 
 WHY_NOT = netns.unavailable()
-pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=f"network namespaces: {WHY_NOT}"),
+pytestmark = [pytest.mark.lab, pytest.mark.skipif(WHY_NOT is not None, reason=f"network namespaces: {WHY_NOT}"),
               pytest.mark.timeout(600)]
 
 TWINMESH = [sys.executable, "-m", "devices"]

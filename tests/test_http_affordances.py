@@ -11,6 +11,8 @@ import httpx
 import pytest
 from labs import start_lab
 
+pytestmark = pytest.mark.lab
+
 PROBLEM = "application/problem+json"
 
 

@@ -12,6 +12,8 @@ from labs import free_port, start_lab
 from tdschema import assert_valid_td
 from test_http_devices import poll
 
+pytestmark = pytest.mark.lab
+
 TOKEN = "t0ken-for-tests"
 BASIC = ("lab", "pa:ss word")
 

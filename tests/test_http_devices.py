@@ -18,6 +18,8 @@ import pytest
 from labs import REPO, Lab, free_port, interrupt, start_lab
 from tdschema import assert_valid_td
 
+pytestmark = pytest.mark.lab
+
 TESTS = Path(__file__).resolve().parent
 STL = b"solid probe\nendsolid probe\n"
 CSV = b"x,y,z,collision\n0,0,0,0\n"

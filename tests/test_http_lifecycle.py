@@ -11,6 +11,8 @@ import pytest
 from labs import free_port, interrupt, start_lab
 from test_http_devices import poll, spawn_device
 
+pytestmark = pytest.mark.lab
+
 CONTRACT = 2.0  # seconds: the join/leave contract
 
 

@@ -9,6 +9,8 @@ import pytest
 from labs import start_lab
 from tdschema import assert_valid_td
 
+pytestmark = pytest.mark.lab
+
 LIGHTS = ["light-left", "light-right"]
 THINGS = [*LIGHTS, "tdgen"]  # `twinmesh up` always starts the TD generator
 TD_CONTEXT_START = ["https://www.w3.org/2019/wot/td/v1", "https://www.w3.org/2022/wot/td/v1.1"]

@@ -11,7 +11,7 @@ import pytest
 from interop import npm
 from labs import start_lab
 
-pytestmark = [pytest.mark.interop, pytest.mark.timeout(180)]
+pytestmark = [pytest.mark.lab, pytest.mark.interop, pytest.mark.timeout(180)]
 
 TOKEN = "n0de-wot-token"
 

@@ -22,6 +22,8 @@ from devices.sim.robot_twin import workspace_from_csv
 from mesh.messages.relations import POINTS, SCENE
 from tdgen.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM
 
+pytestmark = pytest.mark.lab
+
 SAMPLES = "4000"
 PROBLEM = "application/problem+json"
 LISTED = {"dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2", "color-sensor",

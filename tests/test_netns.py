@@ -14,7 +14,7 @@ import pytest
 from tests import netns
 
 WHY_NOT = netns.unavailable()
-pytestmark = pytest.mark.skipif(WHY_NOT is not None, reason=f"network namespaces: {WHY_NOT}")
+pytestmark = [pytest.mark.lab, pytest.mark.skipif(WHY_NOT is not None, reason=f"network namespaces: {WHY_NOT}")]
 
 
 def _dead_pid() -> int:

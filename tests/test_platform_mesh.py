@@ -16,6 +16,8 @@ import pytest
 from labs import mesh_client, start_lab
 from test_platform_tds import THINGS
 
+pytestmark = pytest.mark.lab
+
 PROBLEM = "application/problem+json"
 
 

@@ -151,6 +151,7 @@ def lab(tmp_path_factory):
     assert lab.stop(), "the lab did not stop cleanly"
 
 
+@pytest.mark.lab
 def test_tds_on_zenoh_match_the_real_ones_and_are_valid(lab):
     with mesh_client(lab.endpoint) as client:
         tds = {slug: json.loads(client.td_bytes(slug)) for slug in THINGS}
@@ -161,6 +162,7 @@ def test_tds_on_zenoh_match_the_real_ones_and_are_valid(lab):
         assert_valid_td(td)
 
 
+@pytest.mark.lab
 def test_tds_through_the_adapter_match_the_real_ones_and_are_valid(lab):
     for slug in sorted(THINGS):
         r = httpx.get(f"{lab.http}/{slug}")
@@ -176,6 +178,7 @@ def test_tds_through_the_adapter_match_the_real_ones_and_are_valid(lab):
                 assert "observeproperty" in ops, (slug, name)
 
 
+@pytest.mark.lab
 def test_the_world_td_links_the_scene_and_each_robots_urdf(lab):
     td = httpx.get(f"{lab.http}/world").json()
     links = td["links"]

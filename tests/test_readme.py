@@ -25,6 +25,8 @@ from pathlib import Path
 import pytest
 from labs import REPO, free_port
 
+pytestmark = pytest.mark.lab
+
 README = REPO / "README.md"
 RUN = ("twinmesh", "curl", "printf")
 STREAMS = ("twinmesh observe", "twinmesh subscribe")

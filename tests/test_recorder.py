@@ -11,6 +11,8 @@ from labs import start_lab, stop_process
 from mesh.recorder import mapping
 from mesh.wot.thing_description import DataSchema
 
+pytestmark = pytest.mark.lab
+
 RERUN = str(Path(sys.executable).with_name("rerun"))
 LEFT = "/things/light-left"
 

@@ -26,6 +26,8 @@ from mesh.recorder.robots import DrawnWorkspace, RobotDrawer, RobotFiles, joint_
 from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles, lab_blueprint
 from mesh.wot.thing_description import DataSchema, Link, PropertyAffordance, ThingDescription
 
+pytestmark = pytest.mark.lab
+
 UR10_URDF = (REPO / "tdgen" / "robot" / "models" / "ur10.urdf").read_text()
 JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
           "wrist_3_joint"]

@@ -20,6 +20,8 @@ from mesh.messages.scene_description import Body, Pose, Poses, RobotModel, Scene
 from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles
 from mesh.wot.thing_description import PropertyAffordance, ThingDescription
 
+pytestmark = pytest.mark.lab
+
 UARM_URDF = (REPO / "tdgen" / "robot" / "models" / "uarm_swift_pro.urdf").read_text()
 UARM_BASE = Pose((-0.375, 0.0, 0.75))
 SWEEP = [round(0.1 + 0.02 * i, 4) for i in range(60)]  # lower_arm, rad

@@ -26,6 +26,8 @@ from tdschema import assert_valid_td
 from devices.sim.robot_twin import workspace_from_csv
 from mesh.messages.relations import MODEL, POINTS, SCENE, TWIN, WORKSPACE
 
+pytestmark = pytest.mark.lab
+
 SAMPLES = "6000"
 CLOSER = ("--base", "0", "0.25", "0.625", "0")
 ROBOTS = {

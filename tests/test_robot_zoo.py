@@ -317,6 +317,7 @@ def _free_goal(http: httpx.Client, td: dict, joints: dict) -> dict[str, float]:
     return {j: round(float(nearest[j]), 3) for j in joints}
 
 
+@pytest.mark.lab
 def test_every_zoo_arm_joins_a_lab_gets_its_td_generated_and_moves(lab):
     names = sorted(ZOO)
     moved, refused = [], {}

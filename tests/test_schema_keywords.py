@@ -18,6 +18,8 @@ from labs import start_lab
 
 from mesh.wot.problem import Refused
 
+pytestmark = pytest.mark.lab
+
 PROBLEM = "application/problem+json"
 GOOD = {"step": 10, "target": "home", "config": {"a": 1}, "when": "2026-11-23T10:00:00Z", "tags": ["a"]}
 # property, a value the schema forbids, words the detail must hold

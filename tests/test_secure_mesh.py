@@ -24,7 +24,7 @@ from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
 from tests.labs import Lab, start_lab, stop_process, twinmesh_cmd
 
-pytestmark = pytest.mark.timeout(600)
+pytestmark = [pytest.mark.lab, pytest.mark.timeout(600)]
 
 
 @pytest.fixture(scope="module")

@@ -16,6 +16,8 @@ import psutil
 import pytest
 from labs import start_lab
 
+pytestmark = pytest.mark.lab
+
 
 def _lights_process(lab, not_pid: int | None = None) -> psutil.Process | None:
     """The lab's `twinmesh: lights` child (its title, as `ps` shows it), other than `not_pid`; None when

@@ -25,6 +25,8 @@ from labs import start_lab
 
 from mesh.wot.units import PREFIX, QUDT_UNITS
 
+pytestmark = pytest.mark.lab
+
 SAMPLES = "3000"
 THINGS = {"dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2", "color-sensor",
           "uarm", "ur10", "light-left", "light-right", "pan-tilt-1", "pan-tilt-2", "world", "tdgen"}

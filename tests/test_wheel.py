@@ -12,6 +12,8 @@ import httpx
 import pytest
 from labs import REPO, free_port, stop_process
 
+pytestmark = pytest.mark.lab
+
 # what the code reads beside its modules
 DATA = ["tdgen/robot/models/ur10.urdf", "tdgen/robot/models/uarm_swift_pro.urdf",
         "tdgen/robot/models/dobot_magician.urdf", "tdgen/robot/models/pan-tilt.urdf",

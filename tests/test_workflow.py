@@ -14,6 +14,8 @@ from interop import npm
 from labs import mesh_client, start_lab
 from test_platform_tds import THINGS
 
+pytestmark = pytest.mark.lab
+
 QUEUE = ["cube-red", "cube-green", "cube-blue", "cube-yellow"]
 RGB = {"cube-red": [219, 31, 26], "cube-green": [31, 168, 56], "cube-blue": [31, 71, 219]}
 
