@@ -44,6 +44,8 @@ class Body(msgspec.Struct, omit_defaults=True):
     color: tuple[float, float, float] = (0.6, 0.6, 0.6)  # sRGB 0..1
     opacity: float = 1.0          # 0..1; below 1 for virtual bodies (a safety wall) drawn see-through
     moving: bool = False
+    shows: str | None = None      # a device of `Poses.states` whose {on, color} this body shows (a lamp's shade):
+                                  # drawn in that colour while on, in `color` while off
 
 
 class SceneDescription(msgspec.Struct, omit_defaults=True):
@@ -65,6 +67,7 @@ class Poses(msgspec.Struct, omit_defaults=True):
 TWIN_FILE = "twin.json"
 TWIN_CHANGED = "twinChanged"  # the event a robot Thing emits when its twin changed (the service regenerates)
 DEFAULT_SAMPLES = 80_000  # random configurations a robot's workspace is sampled with, unless asked otherwise
+CollisionModel = Literal["fast", "exact"]  # what decides collisions: the fast sphere model, or pybullet's exact test
 TWIN_REL = relations.TWIN    # TD link to files/twin.json: what the tdgen service generates from
 MODEL_REL = relations.MODEL  # TD link to the robot's URDF file (drawn by the recorder)
 
@@ -94,5 +97,5 @@ class TwinDescription(msgspec.Struct, omit_defaults=True, kw_only=True):
     seed: int = 0
     calibration: list[list[float]] | None = None  # rows twin_x,twin_y,twin_z,real_x,real_y,real_z (mm)
     frame: Literal["twin", "real"] = "twin"
-    collision_model: Literal["fast", "exact"] = "fast"  # what decides a sampled configuration's collision
+    collision_model: CollisionModel = "fast"  # what decides a sampled configuration's collision
     version: int = 0                            # bumped whenever the scene around the robot changes

@@ -216,11 +216,19 @@ class _Fetcher(threading.Thread):
         self._halt = threading.Event()
 
     def run(self) -> None:
+        pending: list[tuple[str, bytes | None]] = []
         while not self._halt.is_set():
             try:
-                thing, td = self.todo.get(timeout=0.2)
+                if not pending:
+                    pending.append(self.todo.get(timeout=0.2))
+                while True:
+                    pending.append(self.todo.get_nowait())
             except queue.Empty:
-                continue
+                if not pending:
+                    continue
+            # the world first: a robot it simulates is then drawn in it, never first in a world of its own
+            first = next((i for i, (name, _) in enumerate(pending) if name == WORLD_THING), 0)
+            thing, td = pending.pop(first)
             try:
                 if td is None:
                     self.fetch(thing)
@@ -424,12 +432,12 @@ class _Writer(threading.Thread):
 
     def send_layout(self) -> None:
         """The lab's blueprint, when what it shows changed (a scene drawn, a robot Thing drawn)."""
-        scene, things = self.scene.scene, self.robots.bases()
-        layout = msgspec.json.encode([scene, list(self.scene.robots), things])
-        if (scene is None and not things) or layout == self._layout:
+        scene, things, own = self.scene.scene, self.robots.bases(), self.robots.own_worlds()
+        layout = msgspec.json.encode([scene, list(self.scene.robots), things, own])
+        if (scene is None and not things and not own) or layout == self._layout:
             return
         self._layout = layout
-        self.rec.send_blueprint(lab_blueprint(scene, list(self.scene.robots), things))
+        self.rec.send_blueprint(lab_blueprint(scene, list(self.scene.robots), things, own))
 
     def log_entries(self, entries: list[mapping.Entry]) -> None:
         for e in entries:

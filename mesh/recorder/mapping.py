@@ -209,6 +209,15 @@ def _colour(value: Any, schema: DataSchema | None) -> Colour | None:
     return Colour(channels, float(scale) or 1.0)
 
 
+def light_colour(value: Any) -> tuple[float, float, float] | None:
+    """A light's colour as sRGB 0..1 (a list or an r/g/b object, in 0..1 or 0..255), or None."""
+    colour = _colour(value, None)
+    if colour is None:
+        return None
+    r, g, b = (min(max(colour.channels[c] / colour.scale, 0.0), 1.0) for c in "rgb")
+    return r, g, b
+
+
 def _is_colour(name: str, schema: DataSchema | None) -> bool:
     hints = [name]
     if schema is not None:

@@ -7,10 +7,15 @@ hull (`relations.WORKSPACE`, STL), both in mm in the robot's base frame. The rec
 fetches and parses them (`RobotFiles`, `DrawnWorkspace.from_files`); `RobotDrawer`, owned by the writer
 thread, draws them into the RecordingStream.
 
-Entities of robot Thing `r` (its links are the frames `r/<link>`, as for the world's robots):
+Entities of robot Thing `r`, simulated in its own world (a process of its own, with its own scene:
+never drawn in a room whose simulation it is not part of). `robots/<r>` is that world's root: its
+frame `tf#/robots/<r>` is the robot's scene frame, and its links are the frames `robots/<r>/<link>`
+(a frame name belongs to one entity: the world's robots are `<r>/<link>`):
 - `robots/<r>/model/...`: the URDF's geometry and zero-pose joints, `robots/<r>/model/base` its base
-  in the scene frame `tf#/world` (static; drawn again when twin.json or the URDF change), and
+  in its scene frame (static; drawn again when twin.json or the URDF change), and
   `robots/<r>/model/joints/<j>` each joint's transform over time;
+- `robots/<r>/scene/<b>`: the bodies of its scene (twin.json's `scene`: boxes, cylinders, URDFs found
+  on this machine), static, those a new twin.json drops cleared;
 - `robots/<r>/joints/<j>`: each joint's value as a time series in rad or m (the Thing reports deg
   and mm, as its TD's `unit`s say), batched like the world's poses; `getJointposition` is not also
   logged as a plain property;
@@ -21,8 +26,9 @@ Entities of robot Thing `r` (its links are the frames `r/<link>`, as for the wor
   in `robots/<r>/log` says when each was drawn. One subtree per robot, so it is one eye toggle.
 A robot Thing whose name is also a robot of the `world` Thing's scene is drawn once: the world draws
 and animates it (its poses are the simulation's state), the Thing adds its joint series and its
-workspace, placed in the world robot's base frame. Whichever arrives first, the Thing's own model is
-cleared when the world takes the robot over, and drawn again if the world's scene drops it.
+workspace, placed in the world robot's base frame. The recorder asks the world first; should a robot
+Thing still be drawn before, its own world is cleared when the world takes the robot over, and drawn
+again if the world's scene drops it.
 """
 from __future__ import annotations
 
@@ -39,9 +45,18 @@ import numpy as np
 import rerun as rr
 
 from mesh.messages import relations
-from mesh.messages.scene_description import MODEL_REL, TWIN_FILE, TWIN_REL, Pose, TwinDescription
+from mesh.messages.scene_description import MODEL_REL, TWIN_FILE, TWIN_REL, Body, Pose, TwinDescription
 from mesh.recorder.mapping import Entry
-from mesh.recorder.scene_drawer import BATCH_AGE, BATCH_ROWS, WORLD, DrawnRobot, SampleBatch, SceneDrawer, thing_robot_path
+from mesh.recorder.scene_drawer import (
+    BATCH_AGE,
+    BATCH_ROWS,
+    ROBOTS,
+    DrawnRobot,
+    SampleBatch,
+    SceneDrawer,
+    body_shape,
+    thing_robot_path,
+)
 from mesh.wot import units
 from mesh.wot.thing_description import ThingDescription
 
@@ -206,6 +221,37 @@ def to_twin_frame(points: np.ndarray, twin: TwinDescription) -> np.ndarray:
     return out
 
 
+def own_frame(robot: str) -> str:
+    """The scene frame of a robot Thing's own world: the implicit frame of its root entity."""
+    return "tf#/" + thing_robot_path(robot)
+
+
+def own_prefix(robot: str) -> str:
+    """Its links' frames are `robots/<r>/<link>`: never the world's `<r>/<link>`, even for one name."""
+    return f"{ROBOTS}/{robot}/"
+
+
+def scene_urdf(ref: str) -> Path:
+    """The file of a scene's URDF body: `pybullet_data:<path>` or a path that exists on this machine."""
+    import pybullet_data
+
+    if ref.startswith("pybullet_data:"):
+        path = Path(pybullet_data.getDataPath()) / ref.removeprefix("pybullet_data:")
+    else:
+        path = Path(ref)
+    if not path.is_file():
+        raise ValueError(f"its URDF {ref} is not on this machine")
+    return path
+
+
+def _quaternion(rpy_deg) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of fixed-axis roll, pitch, yaw in degrees (the tdgen scene convention)."""
+    r, p, y = (math.radians(float(a)) / 2 for a in rpy_deg)
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy)
+
+
 # --- drawing -------------------------------------------------------------------------------------
 @dataclass
 class _RobotThing:
@@ -215,6 +261,7 @@ class _RobotThing:
     host: str | None = None  # the world's robot of the same name, which draws it
     workspace: DrawnWorkspace | None = None
     frame: str | None = None  # the base frame the workspace was logged in
+    scene: set[str] = field(default_factory=set)  # the bodies of its own world drawn now
 
 
 class RobotDrawer:
@@ -232,14 +279,17 @@ class RobotDrawer:
         self._path_frames: dict[str, str] = {}  # robot -> the frame its path entity was placed in
         self._rows = 0
         self._oldest: float | None = None
-        self._world_logged = False
 
     def knows(self, thing: str) -> bool:
         return thing in self.things
 
     def bases(self) -> dict[str, Pose]:
-        """The drawn robot Things' base poses (the blueprint's camera looks at them)."""
-        return {name: t.files.twin.base for name, t in self.things.items() if t.files is not None}
+        """The base poses of the robot Things of the lab's world (the blueprint's camera looks at them)."""
+        return {name: t.files.twin.base for name, t in self.things.items() if t.files is not None and t.host}
+
+    def own_worlds(self) -> dict[str, Pose]:
+        """The robot Things drawn in their own world, with their base poses in it (one tab each)."""
+        return {name: t.files.twin.base for name, t in self.things.items() if t.robot is not None and t.files}
 
     def set_td(self, thing: str, td: ThingDescription) -> None:
         """A robot Thing's TD (again): its joint units."""
@@ -261,25 +311,65 @@ class RobotDrawer:
     def _place(self, name: str, t: _RobotThing, redraw: bool = False) -> list[str]:
         host = name if name in self.scene.robots else None
         problems: list[str] = []
-        if host is not None and t.robot is not None:  # the world took it over
-            self.rec.log(thing_robot_path(name, "model"), rr.Clear(recursive=True), static=True)
-            t.robot = None
+        if host is not None and t.robot is not None:  # the world took it over: its own world goes
+            for part in ("model", "scene"):
+                self.rec.log(thing_robot_path(name, part), rr.Clear(recursive=True), static=True)
+            t.robot, t.scene = None, set()
         elif host is None and t.files is not None and (t.robot is None or redraw):
             try:
-                robot = DrawnRobot.load(name, t.files.urdf, thing_robot_path(name, "model"), urdf_dir(t.files.twin))
+                robot = DrawnRobot.load(name, t.files.urdf, thing_robot_path(name, "model"), urdf_dir(t.files.twin),
+                                        frame_prefix=own_prefix(name))
             except Exception as e:  # a bad URDF: the joint series and the log still record
                 problems.append(f"cannot draw robot {name} from {t.files.twin.urdf_file}: {e}")
             else:
                 problems += [f"robot {name}: {m}" for m in robot.missing]
-                if not self._world_logged:
-                    self.rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-                    self._world_logged = True
-                robot.draw(self.rec, t.files.twin.base)
+                self.rec.log(thing_robot_path(name), rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+                robot.draw(self.rec, t.files.twin.base, own_frame(name))
                 t.robot = robot
+                problems += self._draw_own_scene(name, t)
         t.host = host
         if t.workspace is not None and self._frame(t) != t.frame:  # its base frame is another robot's now
             self._log_frames(name, t)
         return problems
+
+    def _draw_own_scene(self, name: str, t: _RobotThing) -> list[str]:
+        """The bodies of a robot's own scene around it (static), those no longer in it cleared."""
+        assert t.files is not None
+        problems: list[str] = []
+        drawn: set[str] = set()
+        for i, body in enumerate(t.files.twin.scene.get("bodies") or []):
+            label = str(body.get("name") or f"body-{i}") if isinstance(body, dict) else f"body-{i}"
+            try:
+                self._draw_scene_body(name, label, body)
+            except Exception as e:  # one body it cannot draw: said, the rest drawn
+                problems.append(f"robot {name}: scene body {label} not drawn ({e})")
+            else:
+                drawn.add(label)
+        for gone in t.scene - drawn:
+            self.rec.log(thing_robot_path(name, "scene", gone), rr.Clear(recursive=True), static=True)
+        t.scene = drawn
+        return problems
+
+    def _draw_scene_body(self, robot: str, label: str, body: dict) -> None:
+        """A tdgen scene body (box, cylinder or URDF; position m, rpy deg) in the robot's own world."""
+        path = thing_robot_path(robot, "scene", label)
+        pose = Pose(tuple(body.get("position", (0.0, 0.0, 0.0))), _quaternion(body.get("rpy", (0.0, 0.0, 0.0))))
+        kind = body.get("type")
+        if kind == "urdf":
+            file = scene_urdf(str(body["urdf"]))
+            drawn = DrawnRobot.load(label, file.read_text(), path, file.parent,
+                                    frame_prefix=f"{own_prefix(robot)}scene/{label}/")
+            drawn.draw(self.rec, pose, own_frame(robot))
+            return
+        rgba = tuple(body.get("rgba", (0.7, 0.7, 0.7, 1.0)))
+        if kind == "box":
+            shape = Body(label, "box", tuple(body["size"]), pose, rgba[:3], rgba[3])
+        elif kind == "cylinder":
+            shape = Body(label, "cylinder", (body["radius"], body["length"]), pose, rgba[:3], rgba[3])
+        else:
+            raise ValueError(f"a {kind!r} body is not drawn")
+        self.rec.log(path, body_shape(shape), static=True)
+        self.rec.log(path, rr.Transform3D(translation=pose.p, quaternion=rr.Quaternion(xyzw=pose.q)), static=True)
 
     def _urdf(self, t: _RobotThing) -> DrawnRobot | None:
         return self.scene.robots.get(t.host) if t.host is not None else t.robot

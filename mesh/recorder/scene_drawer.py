@@ -20,10 +20,13 @@ Entities (frames: `tf#/world` is the scene frame; robot `r`'s links are the fram
 - `world/robots/<r>/joints/<j>`: each moving joint's transform over time, computed from the URDF;
 - `world/joints/<r>/<j>`: each joint's value as a time series (rad or m), one entity per joint;
 - `world/bodies/<b>`: each body as a box, cylinder or sphere with its colour (static) and its pose
-  (static, or over time for moving bodies such as cubes);
+  (static, or over time for moving bodies such as cubes); a body that shows a device's light (a
+  lamp's shade, `Body.shows`) has its colour over time instead, from that device's `{on, color}`
+  state in the poses, logged the moment the state changes;
 - `world/states/<device>/<key>`: each device's small state by the property rules of
   `mesh.recorder.mapping`, logged when it changes;
-- `robots/<r>/...`: robot Things (see `mesh.recorder.robots`).
+- `robots/<r>/...`: robot Things (see `mesh.recorder.robots`): those of this world in its frame,
+  those simulated apart each in its own world (`tf#/robots/<r>`), never in this room.
 Poses are stamped on three timelines: `time` (wall clock), `seq` (the recorder's message number)
 and `sim_time` (the world's simulated seconds).
 """
@@ -96,25 +99,29 @@ class DrawnRobot:
     missing: list[str]  # mesh files that could not be found: those links are drawn as frames only
 
     @classmethod
-    def load(cls, name: str, urdf: str, root: str, urdf_dir: Path | None) -> "DrawnRobot":
+    def load(cls, name: str, urdf: str, root: str, urdf_dir: Path | None,
+             frame_prefix: str | None = None) -> "DrawnRobot":
         """`urdf_dir`: where the URDF lives on this machine (as its Thing says), so that its meshes
-        (`package://`, relative) are found; the text itself came over the mesh."""
+        (`package://`, relative) are found; the text itself came over the mesh. Its frames are
+        `<frame_prefix><link>` (default `<name>/`): a frame name belongs to one entity of the recording."""
         urdf, missing = with_absolute_meshes(urdf, urdf_dir)
+        prefix = f"{name}/" if frame_prefix is None else frame_prefix
         with tempfile.TemporaryDirectory(prefix="twinmesh-urdf-") as tmp:
             path = Path(tmp) / f"{name}.urdf"
             path.write_text(urdf)
-            tree = UrdfTree.from_file_path(path, None, frame_prefix=f"{name}/",
+            tree = UrdfTree.from_file_path(path, None, frame_prefix=prefix,
                                            static_transform_entity_path=f"{root}/tf_static")
         joints = {j.name: j for j in tree.joints() if j.joint_type != "fixed"}
-        return cls(name, root, tree, joints, f"{name}/{tree.root_link().name}", missing)
+        return cls(name, root, tree, joints, f"{prefix}{tree.root_link().name}", missing)
 
-    def draw(self, rec, base: Pose) -> None:
-        """Its geometry and zero-pose joints (static), primitives solid, the base placed in the scene frame."""
+    def draw(self, rec, base: Pose, parent_frame: str = SCENE_FRAME) -> None:
+        """Its geometry and zero-pose joints (static), primitives solid, the base placed in `parent_frame`
+        (the lab's scene frame, or the frame of a robot's own world)."""
         chunks, filled = self.static_chunks()
         rec.send_chunks(chunks)
         for path, archetype in filled:
             rec.log(path, getattr(rr, archetype).from_fields(fill_mode="solid"), static=True)
-        rec.log(f"{self.root}/base", _placement(base, self.base_frame), static=True)
+        rec.log(f"{self.root}/base", _placement(base, self.base_frame, parent_frame), static=True)
 
     def static_chunks(self) -> tuple[list, list[tuple[str, str]]]:
         """The URDF's visual geometry and zero-pose joint transforms moved under `root`, and the
@@ -192,6 +199,7 @@ class SceneDrawer:
         self._joints: dict[tuple[str, str], SampleBatch] = {}
         self._poses: dict[str, SampleBatch] = {}  # body name or robot name (its base) -> poses
         self._states: dict[tuple[str, str], Any] = {}
+        self._shown: dict[str, tuple[int, ...]] = {}  # body showing a light -> the colour it was drawn in
         self._styled: dict[str, str] = {}  # joint series -> the unit its name was logged with
         self._rows = 0
         self._oldest: float | None = None  # monotonic time of the oldest unwritten row
@@ -234,16 +242,12 @@ class SceneDrawer:
         """A body of the first scene is static; one added later (an obstacle) exists from the time it was
         drawn on, so that scrolling back shows the lab without it."""
         path = body_path(body.name)
-        color = [round(min(max(c, 0.0), 1.0) * 255) for c in (*body.color, body.opacity)]
-        shape: rr.Boxes3D | rr.Cylinders3D | rr.Ellipsoids3D
-        if body.shape == "box":
-            shape = rr.Boxes3D(half_sizes=[[s / 2 for s in body.size]], colors=[color], fill_mode="solid")
-        elif body.shape == "cylinder":
-            shape = rr.Cylinders3D(radii=[body.size[0]], lengths=[body.size[1]], colors=[color], fill_mode="solid")
-        else:
-            r = body.size[0]
-            shape = rr.Ellipsoids3D(half_sizes=[[r, r, r]], colors=[color], fill_mode="solid")
-        self.rec.log(path, shape, static=static)
+        self.rec.log(path, body_shape(body, with_colour=body.shows is None), static=static)
+        if body.shows is not None:  # its colour over time, from the device's state (a static one would shadow it)
+            self._shown.pop(body.name, None)
+            entry = self._shown_colour(body)
+            if entry is not None:
+                self.rec.log(entry.path, entry.archetype)
         if body.moving:  # a static pose would shadow the poses to come: log it as the first of them
             self._batch_pose(body.name, body.pose, wall, seq)
         else:
@@ -267,14 +271,31 @@ class SceneDrawer:
             self._batch_pose(name, pose, wall, seq)
         out: list[Entry] = []
         for device, state in poses.states.items():
+            changed = False
             for key, value in state.items():
                 if self._states.get((device, key), _MISSING) != value:
                     self._states[(device, key)] = value
                     out += mapping.value_entries(state_path(device, key), key, value, None)
+                    changed = True
+            if changed:
+                out += [e for b in self.bodies.values() if b.shows == device
+                        for e in [self._shown_colour(b)] if e is not None]
         self._rows += 1
         if self._oldest is None:
             self._oldest = time.monotonic()
         return out
+
+    def _shown_colour(self, body: Body) -> Entry | None:
+        """The colour of a body that shows a light: the device's colour while it is on, the body's own
+        while off (or before any state); None when it is already drawn in it."""
+        state = {k: v for (device, k), v in self._states.items() if device == body.shows}
+        lit = mapping.light_colour(state.get("color")) if state.get("on") is True else None
+        rgb = lit if lit is not None else body.color
+        colour = tuple(round(min(max(c, 0.0), 1.0) * 255) for c in (*rgb, body.opacity))
+        if self._shown.get(body.name) == colour:
+            return None
+        self._shown[body.name] = colour
+        return Entry(body_path(body.name), _ARCHETYPES[body.shape].from_fields(colors=[colour]))
 
     def _batch_pose(self, name: str, pose: Pose, wall: float, seq: int) -> None:
         batch = self._poses.get(name)
@@ -323,36 +344,62 @@ class SceneDrawer:
             self.rec.send_columns(body_path(name), indexes, columns)
 
 
-def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing_robots: dict[str, Pose]):
-    """How a recording of a lab opens: the lab in 3D, joint plots per robot, states, the log.
+_ARCHETYPES: dict[str, Any] = {"box": rr.Boxes3D, "cylinder": rr.Cylinders3D, "sphere": rr.Ellipsoids3D}
 
-    `thing_robots` are the robot Things (name -> base pose). Their workspaces are hidden in the lab
-    view (one eye toggle per robot in the blueprint panel: `robots/<r>/workspace`) and shown in a
-    second 3D tab, `workspaces`. The time panel opens on `sim_time` when a world runs, else `time`.
+
+def body_shape(body: Body, with_colour: bool = True) -> rr.Boxes3D | rr.Cylinders3D | rr.Ellipsoids3D:
+    """A body's primitive, solid, in its colour unless `with_colour` is False (its colour is logged apart)."""
+    colors = [[round(min(max(c, 0.0), 1.0) * 255) for c in (*body.color, body.opacity)]] if with_colour else None
+    if body.shape == "box":
+        return rr.Boxes3D(half_sizes=[[s / 2 for s in body.size]], colors=colors, fill_mode="solid")
+    if body.shape == "cylinder":
+        return rr.Cylinders3D(radii=[body.size[0]], lengths=[body.size[1]], colors=colors, fill_mode="solid")
+    r = body.size[0]
+    return rr.Ellipsoids3D(half_sizes=[[r, r, r]], colors=colors, fill_mode="solid")
+
+
+def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing_robots: dict[str, Pose],
+                  own_worlds: dict[str, Pose] | None = None):
+    """How a recording of a lab opens: the lab in 3D, each robot simulated apart in its own 3D tab, joint
+    plots per robot, states, the log. The live view sends the same blueprint, so a replay looks the same.
+
+    `thing_robots` are the robot Things of the lab's world (name -> base pose): their workspaces are
+    hidden in the lab view (one eye toggle per robot in the blueprint panel: `robots/<r>/workspace`)
+    and shown in a second 3D tab, `workspaces`. `own_worlds` are the robot Things simulated in their
+    own world (name -> base pose in it): one tab each, its origin the robot's own root `robots/<r>`,
+    with its scene and workspace. The time panel opens on `sim_time` when a world runs, else `time`.
     """
     import rerun.blueprint as rrb
 
-    bases = [r.base.p for r in scene.robots] if scene is not None else []
-    bases += [p.p for p in thing_robots.values()]
-    contents = [f"+ /{WORLD}/robots/**", f"+ /{WORLD}/bodies/**", f"+ /{ROBOTS}/**"]
-    hidden = {"/" + thing_robot_path(r, "workspace"): rrb.EntityBehavior(visible=False) for r in thing_robots}
-    eye = _eye(bases, 2.5 if thing_robots else 1.0)  # a UR10's workspace is 2.6 m across
-    lab: rrb.Spatial3DView | rrb.Tabs = rrb.Spatial3DView(
-        origin=f"/{WORLD}", name=scene.name if scene is not None else "lab", contents=contents,
-        overrides=hidden, eye_controls=eye)  # type: ignore[arg-type]  # rerun's Mapping is invariant in its key
-    if thing_robots:
-        lab = rrb.Tabs(lab, rrb.Spatial3DView(origin=f"/{WORLD}", name="workspaces", contents=contents,
-                                              eye_controls=eye))
+    own = own_worlds or {}
+    spatial: list[rrb.Spatial3DView | rrb.Tabs] = []
+    if scene is not None or thing_robots:
+        bases = [r.base.p for r in scene.robots] if scene is not None else []
+        bases += [p.p for p in thing_robots.values()]
+        contents = [f"+ /{WORLD}/robots/**", f"+ /{WORLD}/bodies/**"]
+        contents += [f"+ /{thing_robot_path(r)}/**" for r in thing_robots]
+        hidden = {"/" + thing_robot_path(r, "workspace"): rrb.EntityBehavior(visible=False) for r in thing_robots}
+        eye = _eye(bases, 2.5 if thing_robots else 1.0)  # a UR10's workspace is 2.6 m across
+        spatial.append(rrb.Spatial3DView(
+            origin=f"/{WORLD}", name=scene.name if scene is not None else "lab", contents=contents,
+            overrides=hidden, eye_controls=eye))  # type: ignore[arg-type]  # rerun's Mapping is invariant in its key
+        if thing_robots:
+            spatial.append(rrb.Spatial3DView(origin=f"/{WORLD}", name="workspaces", contents=contents,
+                                             eye_controls=eye))
+    for r, base in own.items():
+        spatial.append(rrb.Spatial3DView(origin="/" + thing_robot_path(r), name=f"{r} (own world)",
+                                         contents=[f"+ /{thing_robot_path(r)}/**"], eye_controls=_eye([base.p], 2.5)))
+    main = spatial[0] if len(spatial) == 1 else rrb.Tabs(*spatial)
     joints = [rrb.TimeSeriesView(origin="/" + entity_path(WORLD, "joints", r), name=f"{r} joints")
               for r in world_robots]
     joints += [rrb.TimeSeriesView(origin="/" + thing_robot_path(r, "joints"),
                                   name=f"{r} joints" + (" (Thing)" if r in world_robots else ""))
-               for r in thing_robots]
+               for r in [*thing_robots, *own]]
     values = rrb.Tabs(rrb.TimeSeriesView(origin=f"/{WORLD}/states", name="device states"),
                       rrb.TimeSeriesView(origin="/things", name="properties"))
     log = rrb.TextLogView(origin="/", name="log")
     side = rrb.Vertical(rrb.Tabs(*joints), values, log) if joints else rrb.Vertical(values, log)
-    return rrb.Blueprint(rrb.Horizontal(lab, side, column_shares=[3, 2]),
+    return rrb.Blueprint(rrb.Horizontal(main, side, column_shares=[3, 2]),
                          rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
                          rrb.TimePanel(timeline="sim_time" if scene is not None else "time", state="collapsed"))
 
@@ -368,6 +415,6 @@ def _eye(bases: list, least: float = 1.0):
                              eye_up=(0.0, 0.0, 1.0))
 
 
-def _placement(pose: Pose, child_frame: str) -> rr.Transform3D:
-    return rr.Transform3D(translation=pose.p, quaternion=rr.Quaternion(xyzw=pose.q), parent_frame=SCENE_FRAME,
+def _placement(pose: Pose, child_frame: str, parent_frame: str = SCENE_FRAME) -> rr.Transform3D:
+    return rr.Transform3D(translation=pose.p, quaternion=rr.Quaternion(xyzw=pose.q), parent_frame=parent_frame,
                           child_frame=child_frame)

@@ -4,8 +4,13 @@
 `.rrd` files (the room, the robots from their URDFs, cubes, belts, lights, pan-tilt heads, the UR10's
 workspace, obstacles, planned paths, plots of properties) logs into a RecordingStream served over
 Rerun's gRPC proxy, and rerun-sdk serves its own web viewer (its files come with the package: no
-internet) pointed at that stream. A browser that opens the URL later still gets what happened
-before, up to `MEMORY` of it (oldest first out).
+internet) pointed at that stream.
+
+A browser that opens the URL late must be current at once, however long the lab has run: the
+server keeps the static data (the room, the robots' models, the blueprint) and the last `MEMORY` of
+the rest (oldest first out), and sends a new viewer the newest data first (`newest_first`), so the
+current state is drawn before the history fills in behind it. The `.rrd` file of `--record` is a
+separate recorder and keeps everything.
 """
 from __future__ import annotations
 
@@ -16,7 +21,7 @@ from urllib.parse import quote
 
 from mesh.fabric.settings import MeshSettings
 
-MEMORY = "256MiB"  # what the gRPC proxy keeps for browsers that connect later
+MEMORY = "64MiB"  # the history the gRPC proxy keeps for browsers that connect later (static data besides)
 
 
 def view_url(address: tuple[str, int], grpc_port: int) -> str:
@@ -38,7 +43,7 @@ def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] 
     from mesh.recorder.logger import Recorder
 
     rec = rr.RecordingStream("twinmesh")
-    rr.serve_grpc(grpc_port=grpc_port, recording=rec, server_memory_limit=MEMORY)
+    rr.serve_grpc(grpc_port=grpc_port, recording=rec, server_memory_limit=MEMORY, newest_first=True)
     rr.serve_web_viewer(web_port=address[1], open_browser=False, connect_to=grpc_url(address[0], grpc_port))
     rec.send_recording_name(f"twinmesh {settings.prefix} live {time.strftime('%Y-%m-%d %H:%M:%S')}")
     with open_session(settings, service=True) as session, Recorder(session, settings, rec) as recorder:

@@ -24,6 +24,7 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+import msgspec
 import pybullet as pb
 
 from devices.sim.bodies import box, pose
@@ -151,7 +152,8 @@ class IotLab:
         platform = self.platform.describe()
         bodies: list[Body] = [box(c, name, body) for name, body in self.fixtures.items()]
         for lamp in self.lamps.values():
-            bodies += [box(c, f"{lamp.name}-post", lamp.post), box(c, f"{lamp.name}-shade", lamp.shade)]
+            shade = msgspec.structs.replace(box(c, f"{lamp.name}-shade", lamp.shade), color=OFF_RGB, shows=lamp.name)
+            bodies += [box(c, f"{lamp.name}-post", lamp.post), shade]
         bodies += [box(c, o.body_name, body) for o, body in self._obstacles.values()]
         urdfs = self.robot_urdfs()
         robots = [RobotModel(name="ur10", urdf="ur10.urdf", base=self.ur10.base.pose(),
