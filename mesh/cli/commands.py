@@ -101,10 +101,11 @@ def echo_json(value: Any) -> None:
 
 
 @click.command()
-@click.option("--sort", "sort", is_flag=True, help="Sort the names (waits for the last answer first).")
+@click.option("--sort/--unsorted", "sort", default=True, show_default=True,
+              help="Sorted by name, or each name as its answer arrives (a fleet of thousands starts printing at once).")
 @click.pass_obj
 def things(settings: MeshSettings, sort: bool) -> None:
-    """List the Things alive on the mesh, one per line as their answers arrive."""
+    """List the Things alive on the mesh, one name per line, sorted."""
     with mesh_client(settings) as c:
         for name in (c.things() if sort else c.iter_things()):
             click.echo(name)

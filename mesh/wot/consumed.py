@@ -65,9 +65,19 @@ class ProtocolClient(Protocol):
     def close(self) -> None: ...
 
 
+class NothingArrived(TimedOut, queue.Empty):
+    """`Inbox.get` found nothing in time: a Problem like every consumer error, and still the
+    `queue.Empty` that callers of a queue catch."""
+
+    title = "Nothing arrived in time"
+
+
 class Inbox:
-    """A callback that queues what it is given: `get(timeout)` the next value (`queue.Empty` after
-    `timeout` s), raising a Problem a broken stream reported instead of a value."""
+    """A callback that queues what it is given: `get(timeout)` the next value (`NothingArrived` after
+    `timeout` s), raising a Problem a broken stream reported instead of a value.
+
+    An observation brings changes only: a property that already has the awaited value sends nothing,
+    so read it after observing starts and wait only when it differs."""
 
     def __init__(self) -> None:
         self.queue: queue.Queue = queue.Queue()
@@ -76,7 +86,11 @@ class Inbox:
         self.queue.put(value)
 
     def get(self, timeout: float) -> Any:
-        item = self.queue.get(timeout=timeout)
+        try:
+            item = self.queue.get(timeout=timeout)
+        except queue.Empty:
+            raise NothingArrived(f"no change or event arrived within {timeout:g} s (an observation brings changes "
+                                 "only: a property that already had its value sends none; read it first)") from None
         if isinstance(item, BaseException):
             raise item
         return item

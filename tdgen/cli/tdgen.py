@@ -123,10 +123,6 @@ def check_command(td_dir: str, x: float, y: float, z: float, k: int, radius: flo
     except (OSError, ValueError, WorkspaceError) as exc:
         raise usage_exit(str(exc)) from None
     result = workspace.check((x, y, z), k=k, radius=radius, max_probability=max_probability)
-    place = "inside" if result.inside else "outside"
-    probability = "unknown" if result.collision_probability is None else f"{result.collision_probability:.2f}"
-    click.echo(f"target ({x:g}, {y:g}, {z:g}) mm: {place} the workspace (margin {result.margin_mm:.1f} mm), "
-               f"collision probability {probability} from {result.neighbours} samples within {radius:g} mm")
-    click.echo(("OK: " if result.ok else "REFUSED: ") + result.reason)
+    click.echo(f"{'OK' if result.ok else 'REFUSED'}: {result.reason} (target {x:g}, {y:g}, {z:g} mm)")
     if not result.ok:
         raise click.exceptions.Exit(1)
