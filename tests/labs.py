@@ -23,6 +23,9 @@ from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
 
 REPO = Path(__file__).resolve().parents[1]
+# the Things of the `iot-platform` scene (the real lab's devices' twins and the world)
+PLATFORM_THINGS = frozenset({"dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2",
+                             "color-sensor", "uarm", "world"})
 
 
 def free_port() -> int:

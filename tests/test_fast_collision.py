@@ -11,7 +11,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 from click.testing import CliRunner
-from test_robot_zoo import ROBOTS, ZOO
+from zoo import ROBOTS, ZOO
 
 from devices.sim import compensation as c
 from tdgen.robot.collision import CollisionWorld

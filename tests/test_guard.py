@@ -249,7 +249,8 @@ def test_a_robot_twin_guards_a_real_arm(ur10_lab, real_ur10):
 
 def test_the_recorder_has_the_real_device_beside_its_twin_on_one_timeline(lab, tmp_path):
     from labs import stop_process
-    from test_recorder import scalars, wait_for_line
+
+    from recordings import scalars, wait_for_line
 
     path, log = tmp_path / "guarded.rrd", tmp_path / "recorder.log"
     recorder = lab.spawn("record", str(path), log=log)

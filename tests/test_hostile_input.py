@@ -12,7 +12,8 @@ import msgspec
 import psutil
 import pytest
 from labs import REPO, free_port, spawn_up, start_lab, twinmesh_cmd, wait_ready
-from test_recorder import RERUN, scalars, wait_for_line
+
+from recordings import RERUN, scalars, wait_for_line
 
 pytestmark = pytest.mark.lab
 

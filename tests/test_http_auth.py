@@ -9,8 +9,8 @@ import json
 import httpx
 import pytest
 from labs import free_port, start_lab
+from probe import poll
 from tdschema import assert_valid_td
-from test_http_devices import poll
 
 pytestmark = pytest.mark.lab
 

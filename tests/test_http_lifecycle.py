@@ -9,7 +9,7 @@ import time
 import httpx
 import pytest
 from labs import free_port, interrupt, start_lab
-from test_http_devices import poll, spawn_device
+from probe import poll, spawn_device
 
 pytestmark = pytest.mark.lab
 

@@ -13,8 +13,7 @@ import msgspec
 import numpy as np
 import psutil
 import pytest
-from labs import mesh_client, start_lab
-from test_platform_tds import THINGS
+from labs import PLATFORM_THINGS, mesh_client, start_lab
 
 pytestmark = pytest.mark.lab
 
@@ -23,7 +22,7 @@ PROBLEM = "application/problem+json"
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("platform-mesh"), "iot-platform", http=True, things=THINGS,
+    lab = start_lab(tmp_path_factory.mktemp("platform-mesh"), "iot-platform", http=True, things=PLATFORM_THINGS,
                     extra_args=("--speed", "max"))
     yield lab
     assert lab.stop(), "the lab did not stop cleanly"

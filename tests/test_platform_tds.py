@@ -15,7 +15,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from labs import mesh_client, start_lab
+from labs import PLATFORM_THINGS, mesh_client, start_lab
 from tdschema import REFERENCE_TDS, assert_valid_td
 
 from mesh.messages.relations import MODEL, SCENE
@@ -29,7 +29,8 @@ REAL = {
     "color-sensor": "ColorSensor.json",
     "uarm": "Uarm.json",
 }
-THINGS = set(REAL) | {"world"}
+THINGS = set(PLATFORM_THINGS)
+assert THINGS == set(REAL) | {"world"}
 
 # The documented deviations from the real TDs: path pattern (fnmatch) -> why. A difference must
 # match one of them, and each of them must still be needed (no stale entries).

@@ -1,8 +1,6 @@
 """The Rerun logger: what a real recording of the lights lab contains, read back with rerun's reader."""
 import json
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -10,44 +8,11 @@ from labs import start_lab, stop_process
 
 from mesh.recorder import mapping
 from mesh.wot.thing_description import DataSchema
+from recordings import RERUN, read_column, scalars, texts, wait_for_line
 
 pytestmark = pytest.mark.lab
 
-RERUN = str(Path(sys.executable).with_name("rerun"))
 LEFT = "/things/light-left"
-
-
-def wait_for_line(log: Path, text: str, proc: subprocess.Popen, timeout: float = 30.0) -> str:
-    """Wait until `text` appears in a process's log (the recorder's ready line)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        content = log.read_text() if log.exists() else ""
-        if text in content:
-            return content
-        if proc.poll() is not None:
-            raise AssertionError(f"process exited ({proc.returncode}) before {text!r}:\n{content}")
-        time.sleep(0.05)
-    raise AssertionError(f"{text!r} not logged within {timeout} s:\n{log.read_text()}")
-
-
-def read_column(path: Path, entity: str, component: str) -> list:
-    """The values an entity's component took, in recording order (the `seq` timeline)."""
-    from rerun.chunk import RrdReader
-
-    store = RrdReader(path).stream().collect()
-    table = store.reader("seq", contents=entity).to_arrow_table().sort_by("seq")
-    column = f"{entity}:{component}"
-    if column not in table.column_names:
-        return []
-    return [v for v in table.column(column).to_pylist() if v is not None]
-
-
-def scalars(path: Path, entity: str) -> list[float]:
-    return [v[0] for v in read_column(path, entity, "Scalars:scalars")]
-
-
-def texts(path: Path, entity: str) -> list[str]:
-    return [line for v in read_column(path, entity, "TextLog:text") for line in v]
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,6 @@ import msgspec
 import numpy as np
 import pytest
 from labs import REPO, start_lab, stop_process
-from test_recorder import RERUN, read_column, scalars, texts, wait_for_line
 
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.relations import MODEL, POINTS, WORKSPACE
@@ -25,6 +24,7 @@ from mesh.messages.scene_description import Pose, RobotModel, SceneDescription, 
 from mesh.recorder.robots import DrawnWorkspace, RobotDrawer, RobotFiles, joint_units, link_file, to_twin_frame
 from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles, lab_blueprint
 from mesh.wot.thing_description import DataSchema, Link, PropertyAffordance, ThingDescription
+from recordings import RERUN, read_column, scalars, texts, wait_for_line
 
 pytestmark = pytest.mark.lab
 

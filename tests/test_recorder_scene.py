@@ -13,12 +13,12 @@ from pathlib import Path
 import msgspec
 import pytest
 from labs import REPO, start_lab, stop_process
-from test_recorder import RERUN, read_column, scalars, texts, wait_for_line
 
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.scene_description import Body, Pose, Poses, RobotModel, SceneDescription
 from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles
 from mesh.wot.thing_description import PropertyAffordance, ThingDescription
+from recordings import RERUN, read_column, scalars, texts, wait_for_line
 
 pytestmark = pytest.mark.lab
 

@@ -5,8 +5,8 @@ import csv
 
 import numpy as np
 import pytest
+from arms import ROBOTS, level, linkage_urdf, random_q
 from click.testing import CliRunner
-from test_tdgen_kinematics import ROBOTS, level, linkage_urdf, random_q
 
 from tdgen.cli.ik import ik_command
 from tdgen.robot import ik

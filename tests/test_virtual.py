@@ -284,7 +284,7 @@ def test_read_only_numbers_drift_within_their_bounds_and_a_bridged_name_is_named
 
 
 def test_up_thing_adds_a_virtual_thing_to_the_lab_it_starts_and_its_recording(tmp_path):
-    from test_recorder import scalars, wait_for_line
+    from recordings import scalars, wait_for_line
 
     path = next(p for p in CORPUS.values() if p.name == "virtual_light_left.td.json")
     recording = tmp_path / "lab.rrd"

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs, in
 
 from interop import npm  # noqa: E402
 from labs import start_lab  # noqa: E402
-from test_http_devices import spawn_device  # noqa: E402
+from probe import spawn_device  # noqa: E402
 
 WARMUP = 200
 

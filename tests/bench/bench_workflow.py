@@ -26,11 +26,8 @@ import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs, test helpers
 
-from labs import (
-    mesh_client,  # noqa: E402
-    start_lab,  # noqa: E402
-)
-from test_platform_tds import THINGS  # noqa: E402
+from labs import PLATFORM_THINGS as THINGS  # noqa: E402
+from labs import mesh_client, start_lab  # noqa: E402
 
 
 def lab_processes(pid: int) -> dict[str, psutil.Process]:
