@@ -1,14 +1,17 @@
 """Any TD as a virtual Thing on the mesh: served from its TD alone, before its hardware or model exists.
 
 Interface-level simulation, as Eclipse Thingweb's shadow-thing does it: every value the Thing gives
-(a property read, an action's output, an event's data) is drawn from the affordance's own data
+(a property read, an action's output, an event's data) is built from the affordance's own data
 schema and is valid by it (`mesh.wot.schema_values`); initial values are the schema's `const`,
-`default`, `enum` or `examples` where given. Writable properties keep what was written (checked
-first, as for every Thing) and publish the change; read-only numeric properties may drift within
-their bounds (`drift`) so that dashboards see life; every event fires every `events_every` s with
-valid data; an action checks its input and answers a valid output, or nothing when the TD declares
-none. The served TD is the original, forms aside (`mesh.fabric.server.ExposedThing` keeps every
-term); names that are no key chunk are escaped on the wire (`mesh.wot.names`).
+`default`, `enum` or `examples` where given. Every schema is prepared before the Thing is exposed
+(`prepare`, also run by the CLI before anything starts): a TD with a schema no value can be given
+for is refused at start, naming its JSON pointer, and no read, answer or event fails afterwards.
+Writable properties keep what was written (checked first, as for every Thing) and publish the
+change; read-only numeric properties may drift within their bounds (`drift`) so that dashboards
+see life; every event fires every `events_every` s with valid data; an action checks its input and
+answers a valid output, or nothing when the TD declares none. The served TD is the original, forms
+aside (`mesh.fabric.server.ExposedThing` keeps every term); names that are no key chunk are escaped
+on the wire (`mesh.wot.names`).
 """
 from __future__ import annotations
 
@@ -19,9 +22,9 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from mesh.wot.schema_values import NoValue, SchemaValues
 from mesh.fabric.keys import Keys
 from mesh.fabric.server import ExposedThing
+from mesh.wot.schema_values import NoValue, SchemaValues
 
 log = logging.getLogger(__name__)
 
@@ -58,10 +61,12 @@ class VirtualThing:
         self._bind()
 
     def _where(self, *path: str) -> str:
-        return f"{self.name} ({self.spec.source}): {'.'.join(path)}"
+        return where(self.spec, *path)
 
     def _bind(self) -> None:
         td = self.spec.td
+        for schema, path in schemas_of(td):
+            self.values.prepare(schema, where(self.spec, *path))
         for prop, p in (td.get("properties") or {}).items():
             initial = self.values.initial(schema_of(p), self._where("properties", prop))
             if p.get("readOnly"):
@@ -71,9 +76,6 @@ class VirtualThing:
                 self.thing.state(prop, initial)
         for action, a in (td.get("actions") or {}).items():
             self.thing.on_action(action, self._answer(action, a.get("output")))
-        for event, e in (td.get("events") or {}).items():
-            if isinstance(e.get("data"), dict):  # refused now, not at its first firing
-                self.values.value(e["data"], self._where("events", event, "data"))
 
     def _reader(self, prop: str) -> Callable[[], Any]:
         def read() -> Any:
@@ -82,9 +84,6 @@ class VirtualThing:
         return read
 
     def _answer(self, action: str, output: Any) -> Callable[[Any], Any]:
-        if isinstance(output, dict):
-            self.values.value(output, self._where("actions", action, "output"))  # a schema with no value: now
-
         def act(_input: Any) -> Any:
             if not isinstance(output, dict):
                 return None
@@ -111,7 +110,8 @@ class VirtualThing:
                 data = e.get("data")
                 try:
                     with self._lock:
-                        value = self.values.value(data, self._where("events", event)) if isinstance(data, dict) else None
+                        value = self.values.value(data, self._where("events", event, "data")) \
+                            if isinstance(data, dict) else None
                 except NoValue as problem:
                     log.warning("%s", problem)
                     continue
@@ -140,17 +140,34 @@ class VirtualThing:
         self.destroy()
 
 
-def prepare(specs: list[VirtualSpec], seed: int | None) -> None:
-    """Draw every value each Thing needs once, before anything starts: a schema nothing valid can be
-    drawn from is NoValue naming the Thing and the affordance, and none of them starts."""
+def schemas_of(td: dict[str, Any]) -> list[tuple[Any, tuple[str, ...]]]:
+    """Every schema a virtual Thing gives values of, with its path in the TD: properties, action
+    outputs, event data."""
+    out: list[tuple[Any, tuple[str, ...]]] = []
+    for kind, key in (("properties", None), ("actions", "output"), ("events", "data")):
+        for name, a in (td.get(kind) or {}).items():
+            if not isinstance(a, dict):
+                continue
+            schema = schema_of(a) if key is None else a.get(key)
+            if isinstance(schema, (dict, bool)) and (key is None or key in a):
+                out.append((schema, (kind, name) if key is None else (kind, name, key)))
+    return out
+
+
+def where(spec: VirtualSpec, *path: str) -> str:
+    """`NAME (SOURCE): /json/pointer` of a schema in the Thing's TD."""
+    pointer = "".join("/" + p.replace("~", "~0").replace("/", "~1") for p in path)
+    return f"{spec.name} ({spec.source}): {pointer}"
+
+
+def prepare(specs: list[VirtualSpec], seed: int | None = None) -> None:
+    """Prepare every schema of every Thing before anything starts: a schema no value can be given for
+    is NoValue naming the Thing, the JSON pointer and why, and none of them starts. The values are
+    prepared from the schemas alone (not the seed), so the process that serves them finds the same."""
+    values = SchemaValues(seed)
     for spec in specs:
-        values = SchemaValues(seed)
-        td = spec.td
-        for kind, schema_key in (("properties", None), ("actions", "output"), ("events", "data")):
-            for name, a in (td.get(kind) or {}).items():
-                schema = schema_of(a) if schema_key is None else a.get(schema_key)
-                if isinstance(schema, dict):
-                    values.value(schema, f"{spec.name} ({spec.source}): {kind}.{name}")
+        for schema, path in schemas_of(spec.td):
+            values.prepare(schema, where(spec, *path))
 
 
 def run(settings: Any, stop: threading.Event, specs: list[VirtualSpec], seed: int | None = None,
