@@ -66,7 +66,7 @@ async def index(request: Request) -> Response:
 
 
 UI_FILES = {"index.html": "text/html; charset=utf-8", "app.js": "text/javascript; charset=utf-8",
-            "style.css": "text/css; charset=utf-8"}
+            "forms.js": "text/javascript; charset=utf-8", "style.css": "text/css; charset=utf-8"}
 
 
 @functools.cache

@@ -1,24 +1,25 @@
-// The lab's control page: every Thing the adapter lists, drawn from its TD alone (no per-device HTML).
-// Properties show their live value (the adapter's own SSE, one stream for the page), writable ones and actions get a
-// form generated from their schema, answers and problems are shown after each call, events are logged.
-// With HTTP auth on, the credentials are asked once and sent with every call, the streams included
-// (they are read with fetch, which can send them; EventSource cannot).
+// The lab's control page: every Thing the adapter lists, drawn from its TD alone (no per-device HTML), starting from
+// the lab's state. An index (filter by name or type) jumps to each compact card; each property shows its value as
+// labelled fields, live (the adapter's one SSE stream for the page; properties that are not observable are read again
+// while their card is on screen); writable properties and actions get fields generated from their schema (forms.js),
+// filled with the current value, with the raw JSON as an option; answers and problems are shown after each call.
+// With HTTP auth on, the credentials are asked once and sent with every call, the stream included
+// (it is read with fetch, which can send them; EventSource cannot).
+import { $, InputError, editor, guesser, readout, unitName, unitSymbol } from "./forms.js";
 
-const page = { auth: sessionStorage.getItem("twinmesh-auth"), challenge: null };
-const $ = (tag, attrs = {}, ...children) => {
-  const el = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) {
-    if (v === undefined || v === null || v === false) continue;
-    if (k === "text") el.textContent = v; else el.setAttribute(k, v === true ? "" : v);
-  }
-  el.append(...children.filter((c) => c !== null && c !== undefined));
-  return el;
-};
+const page = { auth: sessionStorage.getItem("twinmesh-auth"), challenge: null, view: null, names: [] };
+const POLL_MS = 3000;  // how often a card on screen reads its properties that no stream carries
 const status = (text) => { document.getElementById("status").textContent = text; };
 const ops = (form) => [].concat(form.op || []);
 const formFor = (affordance, op, sse = false) =>
   (affordance.forms || []).find((f) => ops(f).includes(op) && (f.subprotocol === "sse") === sse);
-const unitOf = (schema) => (schema && schema.unit ? String(schema.unit).replace(/^qudt:/, "") : "");
+// An affordance's label: its title where that is short and its own, else its name (a TD's titles can be sentences,
+// or the same for two actions).
+const labelOf = (name, a, all = {}) => {
+  const t = a.title;
+  const shared = Object.entries(all).some(([n, x]) => n !== name && x.title === t);
+  return t && t.length <= 28 && !shared ? t : name;
+};
 
 class NeedsCredentials extends Error {}
 
@@ -57,140 +58,233 @@ document.getElementById("login").addEventListener("submit", (e) => {
 // --- answers ------------------------------------------------------------------------------------
 async function show(out, response) {
   const text = await response.text();
+  out.hidden = false;
   out.dataset.ok = String(response.ok);
   out.dataset.status = String(response.status);
   let body = text;
   try { body = JSON.parse(text); } catch { /* not JSON */ }
-  if (!response.ok && body && typeof body === "object" && "title" in body) {
-    out.textContent = `${response.status} ${body.title}: ${body.detail || ""}${body.reason ? ` (${body.reason})` : ""}`;
-  } else if (response.status === 204) {
-    out.textContent = `${response.status} done`;
+  const label = out.dataset.label ? `${out.dataset.label}: ` : "";
+  if (!response.ok && body && typeof body === "object" && "title" in body) {  // problem+json: say what it says
+    out.textContent = `${label}${response.status} ${body.title}: ${body.detail || ""}${body.reason ? ` (${body.reason})` : ""}`;
+  } else if (response.status === 204 || text === "") {
+    out.textContent = `${label}${response.status} done`;
   } else {
-    out.textContent = `${response.status} ${typeof body === "string" ? body : JSON.stringify(body, null, 1)}`;
+    out.textContent = `${label}${response.status} ${typeof body === "string" ? body : JSON.stringify(body, null, 1)}`;
   }
 }
 
-// --- forms from data schemas ----------------------------------------------------------------------
-// field(schema, label) -> {el, get(), set(value)}: the value as JSON, or undefined when left empty.
-function field(schema = {}, label = "value") {
-  const hint = [unitOf(schema), schema.minimum !== undefined ? `≥ ${schema.minimum}` : "",
-    schema.maximum !== undefined ? `≤ ${schema.maximum}` : ""].filter(Boolean).join(" ");
-  const wrap = (input) => $("label", {}, $("span", { text: schema.title || label }), input,
-    hint ? $("span", { class: "hint", text: hint }) : null);
-  if (schema.enum) {
-    const select = $("select", { name: label }, ...schema.enum.map((v) => $("option", { value: JSON.stringify(v), text: String(v) })));
-    return { el: wrap(select), get: () => JSON.parse(select.value), set: (v) => { select.value = JSON.stringify(v); } };
-  }
-  if (schema.type === "boolean") {
-    const select = $("select", { name: label }, $("option", { value: "true", text: "true" }), $("option", { value: "false", text: "false" }));
-    return { el: wrap(select), get: () => select.value === "true", set: (v) => { select.value = String(v); } };
-  }
-  if (schema.type === "number" || schema.type === "integer") {
-    const input = $("input", { type: "number", name: label, min: schema.minimum, max: schema.maximum,
-      step: schema.type === "integer" ? (schema.multipleOf || 1) : (schema.multipleOf || "any") });
-    const start = schema.default ?? ((schema.minimum ?? 0) <= 0 && 0 <= (schema.maximum ?? 0) ? 0 : schema.minimum);
-    if (start !== undefined) input.value = start;
-    return { el: wrap(input), get: () => (input.value === "" ? undefined : Number(input.value)), set: (v) => { input.value = v; } };
-  }
-  if (schema.type === "string" && !schema.oneOf) {
-    const input = $("input", { type: "text", name: label, value: schema.default });
-    return { el: wrap(input), get: () => (input.value === "" ? undefined : input.value), set: (v) => { input.value = v; } };
-  }
-  if (schema.type === "object" && schema.properties && !schema.oneOf) {
-    const parts = Object.entries(schema.properties).map(([k, s]) => [k, field(s, k)]);
-    const set = $("fieldset", { "data-field": label }, $("legend", { text: schema.title || label }), ...parts.map(([, f]) => f.el));
-    return {
-      el: set,
-      get: () => Object.fromEntries(parts.map(([k, f]) => [k, f.get()]).filter(([, v]) => v !== undefined)),
-      set: (v) => parts.forEach(([k, f]) => v && k in v && f.set(v[k])),
-    };
-  }
-  if (schema.type === "array" && schema.items && !Array.isArray(schema.items) && schema.minItems === schema.maxItems
-      && schema.minItems > 0 && schema.minItems <= 8) {
-    const parts = Array.from({ length: schema.minItems }, (_, i) => field(schema.items, `${label}[${i}]`));
-    const set = $("fieldset", { "data-field": label }, $("legend", { text: schema.title || label }), ...parts.map((f) => f.el));
-    return { el: set, get: () => parts.map((f) => f.get()), set: (v) => Array.isArray(v) && parts.forEach((f, i) => f.set(v[i])) };
-  }
-  const area = $("textarea", { name: label, placeholder: "JSON" });  // oneOf, free objects, long arrays
-  return { el: wrap(area), get: () => (area.value.trim() === "" ? undefined : JSON.parse(area.value)),
-           set: (v) => { area.value = JSON.stringify(v); } };
+function failed(out, err) {
+  out.hidden = false;
+  out.dataset.ok = "false";
+  out.textContent = `${out.dataset.label ? `${out.dataset.label}: ` : ""}${err.message || err}`;
 }
 
 // --- one Thing ------------------------------------------------------------------------------------
-function propertyRow(td, name, p) {
-  const value = $("output", { class: "value", "data-thing": nameOf(td), "data-property": name, text: "…" });
-  const row = $("div", { class: "affordance property", "data-property": name },
-    $("span", { class: "name", text: p.title || name }), " ", value, " ", $("span", { class: "unit", text: unitOf(p) }));
-  const read = formFor(p, "readproperty");
-  if (read) api(read.href).then(async (r) => { if (r.ok) value.textContent = await r.text(); }).catch(() => {});
-  const write = formFor(p, "writeproperty");
-  if (write) {
-    const f = field(p, name);
-    const out = $("pre", { class: "answer", hidden: true });
-    const form = $("form", { class: "call", "data-property": name, novalidate: true }, f.el,
-      $("button", { type: "submit", text: "Write" }));
-    form.addEventListener("submit", async (e) => {
-      e.preventDefault();
-      out.hidden = false;
-      try {
-        await show(out, await api(write.href, { method: write["htv:methodName"] || "PUT",
-          headers: { "Content-Type": "application/json" }, body: JSON.stringify(f.get() ?? null) }));
-      } catch (err) { out.dataset.ok = "false"; out.textContent = String(err.message || err); }
-    });
-    row.append(form, out);
-  }
-  return row;
-}
-
-function actionRow(td, name, a) {
-  const invoke = formFor(a, "invokeaction");
-  const f = a.input ? field(a.input, "input") : null;
-  const out = $("pre", { class: "answer", hidden: true });
-  // novalidate: the Thing judges the input (its 400 names the field), not the browser
-  const form = $("form", { class: "call", "data-action": name, novalidate: true }, f ? f.el : null,
-    $("button", { type: "submit", text: a.title || name }));
-  form.addEventListener("submit", async (e) => {
-    e.preventDefault();
-    out.hidden = false;
-    out.textContent = "…";
-    try {
-      const body = f ? JSON.stringify(f.get() ?? null) : undefined;
-      await show(out, await api(invoke.href, { method: invoke["htv:methodName"] || "POST",
-        headers: body === undefined ? {} : { "Content-Type": "application/json" }, body }));
-    } catch (err) { out.dataset.ok = "false"; out.textContent = String(err.message || err); }
-  });
-  return $("div", { class: "affordance action", "data-action": name },
-    $("span", { class: "name", text: name }), a.description ? $("div", { class: "hint", text: a.description }) : null, form, out);
-}
-
-function eventRow(td, name, e) {
-  return $("div", { class: "affordance event", "data-event": name }, $("span", { class: "name", text: e.title || name }),
-    $("ol", { class: "log", "data-thing": nameOf(td), "data-event": name }));
-}
-
 // The Thing's name on the adapter: the last segment of its TD's own URL (its title is the Thing's to choose).
 function nameOf(td) {
   const self = (td.links || []).find((l) => l.rel === "self");
   return self ? decodeURIComponent(new URL(self.href, location.href).pathname.split("/").pop()) : td.title;
 }
 
+// What kind of Thing it is, for the index and the filter: its @type, else the kind its id names
+// (`urn:twinmesh:robot:ur10`), else the first words of its name it shares with another Thing (`light-left` and
+// `light-right` are lights, `conveyor-belt-1` and `-2` conveyor belts); else none.
+function typeOf(td, name) {
+  const declared = [].concat(td["@type"] || []).map((t) => String(t).replace(/^\w+:/, ""));
+  if (declared.length) return declared.join(" ");
+  const urn = /^urn:[^:]+:([^:]+):/.exec(td.id || "");
+  if (urn && urn[1] !== "thing") return urn[1];
+  const words = name.split("-");
+  for (let n = words.length - 1; n > 0; n--) {
+    const stem = `${words.slice(0, n).join("-")}-`;
+    if (page.names.some((other) => other !== name && other.startsWith(stem))) return stem.slice(0, -1);
+  }
+  return "";
+}
+
+const things = new Map();  // name -> {td, type, section, entry, values, outputs, editors, polled, visible}
+
 function render(td) {
-  const links = (td.links || []).map((l) => $("a", { href: l.href, type: l.type, text: l.rel === "self" ? "TD" : (l.href.split("/").pop() || l.rel) }));
-  if (page.view) links.push($("a", { href: page.view, text: "3D view" }));
   const name = nameOf(td);
-  const section = $("section", { class: "thing", id: `thing-${name}`, "data-thing": name },
-    $("h2", { text: td.title === name ? name : `${td.title} (${name})` }), td.description ? $("p", { class: "description", text: td.description }) : null,
-    $("div", { class: "links" }, ...links));
-  const props = Object.entries(td.properties || {}), actions = Object.entries(td.actions || {}), events = Object.entries(td.events || {});
-  if (props.length) section.append($("h3", { text: "Properties" }), ...props.map(([n, p]) => propertyRow(td, n, p)));
-  if (actions.length) section.append($("h3", { text: "Actions" }), ...actions.map(([n, a]) => actionRow(td, n, a)));
-  if (events.length) section.append($("h3", { text: "Events" }), ...events.map(([n, e]) => eventRow(td, n, e)));
-  return section;
+  const type = typeOf(td, name);
+  const card = { td, name, type, values: {}, outputs: new Map(), editors: [], polled: [], visible: false };
+  const links = (td.links || []).filter((l) => l.rel === "self")
+    .map((l) => $("a", { href: l.href, type: l.type, title: "The Thing Description (JSON)", text: "TD" }));
+  if (page.view) links.push($("a", { href: page.view, text: "3D view" }));
+  const refresh = $("button", { type: "button", class: "refresh", title: "Read every property again", text: "↻" });
+  refresh.addEventListener("click", () => readAll(card));
+  const description = td.description ? $("p", { class: "description", title: td.description, text: td.description }) : null;
+  if (description) description.addEventListener("click", () => description.classList.toggle("open"));
+  const section = $("section", { class: "thing", id: `thing-${name}`, "data-thing": name, "data-type": type },
+    $("header", {}, $("h2", { text: td.title === name ? name : `${td.title} (${name})` }),
+      type ? $("span", { class: "type", text: type }) : null,
+      $("span", { class: "links" }, ...links, refresh)),
+    description);
+  card.section = section;
+  const props = Object.entries(td.properties || {});
+  const actions = Object.entries(td.actions || {});
+  const events = Object.entries(td.events || {});
+  if (props.length) section.append($("div", { class: "props" }, ...props.map(([n, p]) => propertyRow(card, n, p))));
+  const quick = actions.filter(([, a]) => !a.input);
+  if (quick.length) {
+    const answers = quick.map(([n]) => $("pre", { class: "answer", "data-action": n, "data-label": n, hidden: true }));
+    section.append($("div", { class: "quick" }, $("span", { class: "kind", text: "Actions" }),
+      ...quick.map(([n, a], i) => actionForm(card, n, a, answers[i]))), ...answers);
+  }
+  for (const [n, a] of actions.filter(([, x]) => x.input)) section.append(actionBox(card, n, a));
+  if (events.length) section.append($("div", { class: "events" }, ...events.map(([n, e]) => eventRow(card, n, e))));
+  card.polled = props.filter(([, p]) => !p.observable && !p.writeOnly && formFor(p, "readproperty")).map(([n]) => n);
+  return card;
+}
+
+function propertyRow(card, name, p) {
+  const value = $("output", { class: "value", "data-thing": card.name, "data-property": name, text: "…" });
+  card.outputs.set(name, { el: value, schema: p });
+  const unit = unitSymbol(p);
+  const row = $("div", { class: `prop${p.observable ? " live" : ""}`, "data-property": name },
+    $("span", { class: "name", title: [p.title, p.description, p.observable ? "(live)" : "(read again while on screen)"]
+      .filter(Boolean).join("\n"), text: labelOf(name, p, card.td.properties) }),
+    $("span", { class: "reading" }, value, unit && typeof p.type === "string" && !["object", "array"].includes(p.type)
+      ? $("span", { class: "unit", title: unitName(p), text: unit }) : null));
+  const write = !p.readOnly && formFor(p, "writeproperty");
+  if (!write) return row;
+  const structured = ["object", "array"].includes(p.type) || Boolean(p.oneOf);
+  const ed = editor(p, { label: p.title || name, key: name, raw: structured });
+  card.editors.push({ ed, seed: () => (schema) => (schema === p ? card.values[name] : undefined) });
+  const out = $("pre", { class: "answer", "data-property": name, hidden: true });
+  const button = $("button", { type: "submit", text: "Set" });
+  const form = $("form", { class: "call", "data-property": name, novalidate: true }, ed.el,
+    $("span", { class: "tools" }, ...ed.tools, button));
+  form.addEventListener("submit", async (e) => {
+    e.preventDefault();
+    await call(out, button, ed, (body) => api(write.href, { method: write["htv:methodName"] || "PUT",
+      headers: { "Content-Type": "application/json" }, body }));
+    if (out.dataset.ok === "true") readOne(card, name);  // not every property is observable: show what it is now
+  });
+  if (structured) {
+    row.append($("details", { class: "edit" }, $("summary", { text: "edit" }), form, out));
+  } else {
+    form.classList.add("inline");
+    row.append(form, out);
+  }
+  return row;
+}
+
+async function call(out, button, ed, send) {
+  let body;
+  try {
+    const v = ed ? ed.get() : undefined;
+    body = ed ? JSON.stringify(v ?? null) : undefined;
+  } catch (err) {
+    if (err instanceof InputError) { failed(out, err); return; }
+    throw err;
+  }
+  out.hidden = false;
+  out.dataset.ok = "";
+  out.textContent = `${out.dataset.label ? `${out.dataset.label}: ` : ""}…`;
+  button.disabled = true;
+  try {
+    await show(out, await send(body));
+    if (ed && out.dataset.ok === "true") ed.reset();  // done: follow the Thing's state again
+  } catch (err) { failed(out, err); } finally { button.disabled = false; }
+}
+
+function actionForm(card, name, a, out, ed = null) {
+  const invoke = formFor(a, "invokeaction");
+  const button = $("button", { type: "submit", title: [a.title, a.description].filter(Boolean).join("\n"),
+    text: labelOf(name, a, card.td.actions) });
+  // novalidate: the Thing judges the input (its 400 names the field), not the browser
+  const form = $("form", { class: "call", "data-action": name, novalidate: true }, ed ? ed.el : null,
+    ed ? $("span", { class: "tools" }, ...ed.tools, button) : button);
+  form.addEventListener("submit", (e) => {
+    e.preventDefault();
+    call(out, button, ed, (body) => api(invoke.href, { method: invoke["htv:methodName"] || "POST",
+      headers: body === undefined ? {} : { "Content-Type": "application/json" }, body }));
+  });
+  return form;
+}
+
+function actionBox(card, name, a) {
+  const structured = ["object", "array"].includes(a.input.type) || Boolean(a.input.oneOf);
+  const ed = editor(a.input, { label: a.title || name, key: name, raw: structured });
+  const guess = () => guesser(card.values, card.td.properties || {}, name);
+  card.editors.push({ ed, seed: guess });
+  const out = $("pre", { class: "answer", "data-action": name, hidden: true });
+  const summary = $("summary", { title: a.description },
+    $("span", { class: "name", text: labelOf(name, a, card.td.actions) }),
+    a.description ? $("span", { class: "hint", text: a.description }) : null);
+  return $("details", { class: "action", "data-action": name }, summary, actionForm(card, name, a, out, ed), out);
+}
+
+function eventRow(card, name, e) {
+  const last = $("output", { class: "last", "data-event": name, text: "–" });
+  return $("details", { class: "event", "data-event": name },
+    $("summary", { title: e.description }, $("span", { class: "name", text: labelOf(name, e, card.td.events) }), " ", last),
+    $("ol", { class: "log", "data-thing": card.name, "data-event": name }));
+}
+
+// --- values -----------------------------------------------------------------------------------------
+const dirty = new Set();  // cards with values not yet drawn (drawn once per frame, however fast they come)
+
+function setValue(card, name, value) {
+  card.values[name] = value;
+  if (!dirty.size) requestAnimationFrame(draw);
+  dirty.add(card);
+  (card.changed ||= new Set()).add(name);
+}
+
+function draw() {
+  for (const card of dirty) {
+    for (const name of card.changed) {
+      const out = card.outputs.get(name);
+      if (!out) continue;
+      const open = [...out.el.querySelectorAll("details[open]")].map((d) => d.parentElement?.dataset.key);
+      out.el.replaceChildren(readout(out.schema, card.values[name], 0, name));
+      for (const d of out.el.querySelectorAll("details")) {  // keep a folded value open while it changes
+        if (open.includes(d.parentElement?.dataset.key)) d.open = true;
+      }
+    }
+    card.changed.clear();
+    for (const { ed, seed } of card.editors) ed.seed(seed());
+  }
+  dirty.clear();
+}
+
+async function readAll(card) {
+  const all = (card.td.forms || []).find((f) => ops(f).includes("readallproperties"));
+  if (!all) { await Promise.all(Object.keys(card.td.properties || {}).map((n) => readOne(card, n))); return; }
+  try {
+    const r = await api(all.href, { headers: { Accept: "application/json" } });
+    if (r.ok) for (const [n, v] of Object.entries(await r.json())) setValue(card, n, v);
+  } catch { /* it left or restarts: the stream says so */ }
+}
+
+async function readOne(card, name) {
+  const read = formFor((card.td.properties || {})[name] || {}, "readproperty");
+  if (!read) return;
+  try {
+    const r = await api(read.href);
+    if (r.ok) setValue(card, name, await r.json());
+  } catch { /* as above */ }
+}
+
+async function poll() {
+  if (document.visibilityState !== "visible") return;
+  await Promise.all([...things.values()].filter((c) => c.visible && c.polled.length && !c.section.hidden)
+    .map(async (card) => {
+      const all = (card.td.forms || []).find((f) => ops(f).includes("readmultipleproperties"));
+      if (!all) return Promise.all(card.polled.map((n) => readOne(card, n)));
+      try {
+        const r = await api(`${all.href}?names=${card.polled.map(encodeURIComponent).join(",")}`);
+        if (r.ok) for (const [n, v] of Object.entries(await r.json())) setValue(card, n, v);
+      } catch { /* as above */ }
+      return undefined;
+    }));
 }
 
 // --- live updates -----------------------------------------------------------------------------------
-async function follow(url, onEvent, stop, onOpen = () => {}) {
-  while (!stop.stopped) {
+async function follow(url, onEvent, onOpen = () => {}) {
+  for (;;) {
     try {
       const r = await api(url, { headers: { Accept: "text/event-stream" } });
       if (!r.ok) throw new Error(`${r.status}`);
@@ -199,7 +293,7 @@ async function follow(url, onEvent, stop, onOpen = () => {}) {
       let buffer = "";
       for (;;) {
         const { value, done } = await reader.read();
-        if (done || stop.stopped) break;
+        if (done) break;
         buffer += value.replace(/\r\n/g, "\n");
         let end;
         while ((end = buffer.indexOf("\n\n")) >= 0) {
@@ -216,68 +310,154 @@ async function follow(url, onEvent, stop, onOpen = () => {}) {
     } catch (err) {
       if (err instanceof NeedsCredentials) return;
     }
-    await new Promise((done) => setTimeout(done, 2000));  // the Thing left, or the adapter restarts
+    await new Promise((done) => setTimeout(done, 2000));  // the adapter restarts: again, and read the state anew
+    things.forEach(readAll);
   }
 }
 
 function update(name, data) {  // one notification of the lab stream: `<thing>/<kind>/<name>`
   const [thing, kind, affordance] = name.split("/");
-  const section = shown.get(thing)?.section;
-  if (!section) return;
-  if (kind === "properties") {
-    const out = section.querySelector(`output[data-property="${CSS.escape(affordance)}"]`);
-    if (out) out.textContent = data;
-  } else if (kind === "events") {
-    const log = section.querySelector(`ol[data-event="${CSS.escape(affordance)}"]`);
-    if (!log) return;
-    log.prepend($("li", { text: `${new Date().toLocaleTimeString()} ${data}` }));
+  const card = things.get(thing);
+  if (!card) return;
+  let value = data;
+  try { value = JSON.parse(data); } catch { /* not JSON: shown as it came */ }
+  if (kind === "properties") setValue(card, affordance, value);
+  else if (kind === "events") {
+    const box = card.section.querySelector(`details[data-event="${CSS.escape(affordance)}"]`);
+    if (!box) return;
+    const text = typeof value === "object" ? JSON.stringify(value) : String(value);
+    box.querySelector("output.last").textContent = text;
+    const log = box.querySelector("ol.log");
+    log.prepend($("li", {}, $("time", { text: new Date().toLocaleTimeString() }), " ", text));
     while (log.children.length > 50) log.lastChild.remove();
   }
 }
 
-// --- the page -------------------------------------------------------------------------------------
-const shown = new Map();  // name -> {section}
+// --- the index and its filter ---------------------------------------------------------------------------
+function indexEntry(card) {
+  const link = $("a", { href: `#thing-${card.name}`, "data-thing": card.name },
+    $("span", { class: "n", text: card.name }),
+    card.type && !card.name.startsWith(card.type) ? $("span", { class: "t", text: card.type }) : null);
+  link.addEventListener("click", (e) => {  // jump, and say where we landed
+    e.preventDefault();
+    history.replaceState(null, "", `#thing-${card.name}`);
+    card.section.scrollIntoView({ block: "start" });
+    card.section.classList.remove("flash");
+    void card.section.offsetWidth;
+    card.section.classList.add("flash");
+  });
+  return $("li", { "data-thing": card.name }, link);
+}
+
+function applyFilter() {
+  const words = document.getElementById("filter").value.trim().toLowerCase().split(/\s+/).filter(Boolean);
+  let shown = 0;
+  for (const card of things.values()) {
+    const hay = `${card.name} ${card.td.title || ""} ${card.type}`.toLowerCase();
+    const match = words.every((w) => hay.includes(w));
+    card.section.hidden = !match;
+    card.entry.hidden = !match;
+    shown += match;
+  }
+  document.getElementById("count").textContent = words.length ? `${shown} of ${things.size}` : `${things.size}`;
+  document.getElementById("nomatch").hidden = shown > 0;
+  const types = [...new Set([...things.values()].map((c) => c.type).filter(Boolean))].sort();
+  const chips = document.getElementById("types");
+  if (chips.childElementCount !== types.length) {
+    chips.replaceChildren(...types.map((t) => {
+      const chip = $("button", { type: "button", "data-type": t, text: t });
+      chip.addEventListener("click", () => {
+        const input = document.getElementById("filter");
+        input.value = input.value.trim().toLowerCase() === t ? "" : t;
+        applyFilter();
+      });
+      return chip;
+    }));
+  }
+  const q = words.join(" ");
+  for (const chip of chips.children) chip.setAttribute("aria-pressed", String(chip.dataset.type === q));
+}
+
+const onScreen = new IntersectionObserver((seen) => {
+  for (const s of seen) {
+    const card = things.get(s.target.dataset.thing);
+    if (card) card.visible = s.isIntersecting;
+  }
+});
 
 function place(td) {
-  const name = nameOf(td);
-  const old = shown.get(name);
-  const section = render(td);
+  if (!page.names.includes(nameOf(td))) page.names.push(nameOf(td));
+  const card = render(td);
+  const old = things.get(card.name);
   const main = document.getElementById("things");
-  if (old) old.section.replaceWith(section);
-  else {
-    const after = [...shown.keys()].sort().find((t) => t > name);
-    main.insertBefore(section, after ? shown.get(after).section : null);
+  const list = document.getElementById("index");
+  card.entry = indexEntry(card);
+  if (old) {
+    onScreen.unobserve(old.section);
+    old.section.replaceWith(card.section);
+    old.entry.replaceWith(card.entry);
+  } else {
+    const after = [...things.keys()].sort().find((t) => t > card.name);
+    main.insertBefore(card.section, after ? things.get(after).section : null);
+    list.insertBefore(card.entry, after ? things.get(after).entry : null);
   }
-  shown.set(name, { section });
+  things.set(card.name, card);
+  onScreen.observe(card.section);
+  applyFilter();
+  return readAll(card);
 }
 
 async function directory(kind, data) {
   const { title } = JSON.parse(data);
-  if (kind === "thing_deleted") { shown.get(title)?.section.classList.add("gone"); return; }
+  if (kind === "thing_deleted") {
+    const card = things.get(title);
+    if (card) { card.section.classList.add("gone"); card.entry.classList.add("gone"); }
+    return;
+  }
   place(await api(`/${title}`).then((x) => x.json()));
-  status(`${shown.size} Things`);
+  status(`${things.size} Things`);
 }
+
+document.getElementById("filter").addEventListener("input", applyFilter);
+document.getElementById("filter").addEventListener("keydown", (e) => {
+  if (e.key === "Enter") {  // Enter goes to the first Thing that matches
+    e.preventDefault();
+    document.querySelector("#index li:not([hidden]) a")?.click();
+  } else if (e.key === "Escape") {
+    e.target.value = "";
+    applyFilter();
+  }
+});
+document.addEventListener("keydown", (e) => {  // "/" finds a Thing, as in most consoles
+  if (e.key === "/" && !/^(INPUT|TEXTAREA|SELECT)$/.test(document.activeElement?.tagName || "")) {
+    e.preventDefault();
+    document.getElementById("filter").focus();
+  }
+});
 
 async function start() {
   try {
     const config = await fetch("/_ui/config.json").then((r) => (r.ok ? r.json() : {})).catch(() => ({}));
     page.view = config.view || null;
-    if (page.view) document.getElementById("views").append($("a", { href: page.view, text: "3D view of the lab" }));
+    if (page.view) document.getElementById("views").replaceChildren($("a", { href: page.view, text: "3D view of the lab" }));
     const r = await api("/things");
     const tds = await r.json();
+    page.names = tds.map(nameOf);
     const secured = tds.map((td) => (td.securityDefinitions || {})[[].concat(td.security || [])[0]])
       .find((d) => d && d.scheme && d.scheme !== "nosec");
     if (secured && !page.auth) {  // the TDs say what to send: ask before any call is refused
       askCredentials(secured.scheme);
       return;
     }
-    tds.forEach(place);
+    const loaded = Promise.all(tds.map(place)).then(() => new Promise((done) => requestAnimationFrame(done)));
     status(`${tds.length} Things`);
+    if (location.hash) document.getElementById(decodeURIComponent(location.hash.slice(1)))?.scrollIntoView();
+    setInterval(poll, POLL_MS);
     // one stream for the whole page: a browser opens at most six connections to a host
     follow("/_lab/stream", (name, data) => {
       if (name.startsWith("/directory/events/")) directory(name.split("/").pop(), data);
       else update(name, data);
-    }, { stopped: false }, () => { document.body.dataset.ready = "true"; });
+    }, () => { loaded.then(() => { document.body.dataset.ready = "true"; }); });  // live, and showing the state
   } catch (err) {
     if (!(err instanceof NeedsCredentials)) status(`Cannot load the Things: ${err.message || err}`);
   }
