@@ -22,7 +22,7 @@ from urllib.parse import urlsplit
 import msgspec
 import numpy as np
 
-from mesh.messages.scene_description import DEFAULT_SAMPLES
+from mesh.messages.scene_description import DEFAULT_SAMPLES, CollisionModel
 from mesh.wot.thing_description import NOSEC, Security
 from tdgen.robot import points_csv
 from tdgen.robot.calibration import Calibration, CalibrationError, Model, load_calibration
@@ -108,7 +108,7 @@ def generate(robot: Robot | str | Path, scene: Surroundings | str | Path | None 
              ee: str | None = None, workers: int | None = None, calibration_model: Model = "auto",
              on_progress: Callable[[float], None] | None = None, security: Security = NOSEC,
              mount: RobotPlacement | None = None, surface: bool = True,
-             collision_model: str = "fast") -> GenerationResult:
+             collision_model: CollisionModel = "fast") -> GenerationResult:
     """Generate a robot's TD and workspace artefacts into `out_dir`.
 
     `robot` is a Robot or a URDF path (`ee` then picks the end-effector link); `scene` a Surroundings, a

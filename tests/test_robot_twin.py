@@ -388,14 +388,15 @@ def test_a_failed_generation_is_reported_and_explains_the_refusals(mesh, twin, t
 
 def test_the_ur10_scene_runs_the_generic_robot_at_the_lab_speed():
     from devices.lab import entries
-    from devices.lab.scenes import scene_specs
+    from devices.lab.scenes import LabOptions, scene_specs
+    from devices.things.robot_setup import RobotSetup
 
-    (spec,) = scene_specs("ur10", speed=None, samples=5000)
-    assert spec.kwargs == {"urdf": "ur10.urdf", "name": "ur10", "scene": "table-and-wall", "speed": None,
-                           "samples": 5000}
+    (spec,) = scene_specs("ur10", LabOptions(speed=None, samples=5000))
+    assert spec.kwargs["setup"] == RobotSetup(urdf="ur10.urdf", name="ur10", scene="table-and-wall", speed=None,
+                                              samples=5000)
     assert spec.target is entries.robot
-    (lab,) = scene_specs("iot-lab", speed=2.0)
-    assert lab.kwargs == {"speed": 2.0, "samples": 80_000} and lab.target is entries.iot_lab
+    (lab,) = scene_specs("iot-lab", LabOptions(speed=2.0))
+    assert (lab.kwargs["speed"], lab.kwargs["samples"]) == (2.0, 80_000) and lab.target is entries.iot_lab
 
 
 def test_a_calibrated_robot_gets_its_td_checks_and_moves_in_the_real_frame_from_the_service(mesh, world, ur10, scene,

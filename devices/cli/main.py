@@ -7,7 +7,7 @@ import os
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import click
 import msgspec
@@ -25,6 +25,9 @@ from mesh.messages.scene_description import DEFAULT_SAMPLES
 from mesh.process import SHOW_NATIVE, set_title
 from mesh.wot.problem import Problem
 from tdgen.cli.counts import SampleCount
+
+if TYPE_CHECKING:
+    from devices.lab.scenes import Scene
 
 
 class LazyGroup(click.Group):
@@ -222,22 +225,26 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     Ctrl-C stops it all."""
     if not outlive_parent and follows_its_starter():
         die_with_parent(os.getppid(), grace=STARTER_GONE_GRACE)
-    from devices.lab.scenes import DEFAULT_SCENE, FLEET, scene_specs, scene_things
+    from devices.lab.scenes import DEFAULT_SCENE, FLEET, LabOptions, find_scene
 
-    scene = scene or DEFAULT_SCENE
-    if scene != FLEET and (fleet is not None or fleet_first != 1):
-        raise usage_exit(f"--fleet and --fleet-first are for the fleet scene (`twinmesh up fleet --fleet N`), "
-                         f"not for {scene!r}")
-    if not real and (real_calibration or real_auth or real_ca or real_insecure):
-        raise usage_exit("--real-auth, --real-ca, --real-insecure and --real-calibration go with --real DEVICE=URL")
     try:
-        specs = scene_specs(scene, speed=_speed(speed), samples=samples, fleet=fleet, fleet_first=fleet_first)
-        things = scene_things(scene, fleet=fleet, fleet_first=fleet_first)
+        the_scene = find_scene(scene or DEFAULT_SCENE)
     except KeyError as e:
         raise usage_exit(str(e.args[0])) from None
-    things += _added_devices(scene, specs, things, real, real_calibration,
-                             commands.remote_access(real_auth, real_ca, real_insecure) if real else None,
-                             virtual_things)
+    if the_scene.name != FLEET and (fleet is not None or fleet_first != 1):
+        raise usage_exit(f"--fleet and --fleet-first are for the fleet scene (`twinmesh up fleet --fleet N`), "
+                         f"not for {the_scene.name!r}")
+    if not real and (real_calibration or real_auth or real_ca or real_insecure):
+        raise usage_exit("--real-auth, --real-ca, --real-insecure and --real-calibration go with --real DEVICE=URL")
+    speed_factor = _speed(speed)
+    access = commands.remote_access(real_auth, real_ca, real_insecure) if real else None
+    guarded = _guard_real(the_scene, real, access, real_calibration) if real else ()
+    options = LabOptions(speed=speed_factor, samples=samples, fleet=fleet, fleet_first=fleet_first, real=guarded,
+                         access=access)
+    specs, things = the_scene.processes(options), the_scene.things(options)
+    things += [f"{d.slug}-real" for d in guarded]
+    scene = the_scene.name
+    things += _add_virtual(scene, specs, things, virtual_things)
     if direct and not join:
         raise usage_exit("--direct is for --join ENDPOINT (this host's devices linked straight to that lab's router)")
     if zenoh_endpoint:
@@ -255,22 +262,18 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     _run_lab(settings, scene, [*services, *specs, *adapter], things, url, view_url, record)
 
 
-def _added_devices(scene: str, specs: list[ProcessSpec], things: list[str], real: tuple[str, ...],
-                   real_calibration: tuple[str, ...], real_access: Any, virtual_things: tuple[str, ...]) -> list[str]:
-    """The processes of the guarded real devices and of the virtual Things, added to the scene's `specs`;
-    returns the names of the Things they add (usage errors exit before anything starts)."""
-    added: list[str] = []
-    if real:
-        added += _guard_real(specs, scene, real, real_access, real_calibration)
-    if virtual_things:
-        specs_v = _virtual_specs(virtual_things, commands.remote_access(None, None, False))
-        taken = {v.name for v in specs_v} & {*things, *added}
-        if taken:
-            raise usage_exit(f"--thing {sorted(taken)[0]}: the scene {scene!r} already has a Thing of that name "
-                             f"({'a guarded real device' if sorted(taken)[0].endswith('-real') else 'a twin'})")
-        specs.append(ProcessSpec("virtual", entries.virtual, {"specs": specs_v}, role="virtual"))
-        added += [v.name for v in specs_v]
-    return added
+def _add_virtual(scene: str, specs: list[ProcessSpec], things: list[str], virtual_things: tuple[str, ...]) -> list[str]:
+    """The process of the virtual Things (`--thing NAME=TD`), added to the scene's `specs`; returns the
+    names of the Things it adds (usage errors exit before anything starts)."""
+    if not virtual_things:
+        return []
+    specs_v = _virtual_specs(virtual_things, commands.remote_access(None, None, False))
+    taken = {v.name for v in specs_v} & set(things)
+    if taken:
+        raise usage_exit(f"--thing {sorted(taken)[0]}: the scene {scene!r} already has a Thing of that name "
+                         f"({'a guarded real device' if sorted(taken)[0].endswith('-real') else 'a twin'})")
+    specs.append(ProcessSpec("virtual", entries.virtual, {"specs": specs_v}, role="virtual"))
+    return [v.name for v in specs_v]
 
 
 def _lab_services(settings: MeshSettings, address: tuple[str, int] | None, view_address: tuple[str, int] | None,
@@ -333,10 +336,10 @@ def _run_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], thing
 def _virtual_specs(given: tuple[str, ...], access: Any) -> list[Any]:
     """Every NAME=TD taken in and checked, each value it needs drawn once: one that cannot be served
     starts none of them (exit code 2, one line naming the first problem)."""
-    from mesh.wot.schema_values import NoValue
     from devices.things.virtual import VirtualSpec, prepare
     from mesh.bridge.intake import IntakeError, take_in
     from mesh.fabric.keys import check_slug
+    from mesh.wot.schema_values import NoValue
 
     specs: list[Any] = []
     client = access.client()
@@ -399,21 +402,17 @@ def virtual(settings: MeshSettings, given: tuple[str, ...], seed: int | None, dr
     run(settings, stop, specs, seed=seed, drift=drift, events_every=events_every, ready=ready)
 
 
-def _guard_real(specs: list[ProcessSpec], scene: str, real: tuple[str, ...], access: Any,
-                calibrations: tuple[str, ...]) -> list[str]:
-    """Take in every real device's TD (one that cannot be had starts nothing) and give them to the scene's
-    world process; the Things this adds to the lab (`<device>-real`)."""
+def _guard_real(scene: Scene, real: tuple[str, ...], access: Any, calibrations: tuple[str, ...]) -> tuple[Any, ...]:
+    """Every real device's TD taken in (one that cannot be had starts nothing), for the scene's devices that
+    can guard one: the `RealDevice`s its world process gets."""
     from devices.things.guard import RealDevice
-    from devices.things.platform_things import PLATFORM_DEVICES
     from mesh.bridge.intake import IntakeError
     from mesh.bridge.run import parse_remote, take_in_all
 
-    world = [s for s in specs if s.name in ("iot-platform", "iot-lab", "ur10")]
-    if not world:
-        raise usage_exit(f"--real is for the scenes with devices that can guard a real one (iot-platform, iot-lab, "
-                         f"ur10), not {scene!r}")
-    guardable = {"iot-platform": set(PLATFORM_DEVICES), "iot-lab": {*PLATFORM_DEVICES, "ur10"},
-                 "ur10": {"ur10"}}[scene]
+    if not scene.guardable:
+        guarding = sorted(n for n, s in _scenes().items() if s.guardable)
+        raise usage_exit(f"--real is for the scenes with devices that can guard a real one ({', '.join(guarding)}), "
+                         f"not {scene.name!r}")
     try:
         remotes = [parse_remote(r) for r in real]
         pairs = dict(c.split("=", 1) for c in calibrations if "=" in c)
@@ -422,9 +421,9 @@ def _guard_real(specs: list[ProcessSpec], scene: str, real: tuple[str, ...], acc
     if len(pairs) != len(calibrations):
         raise usage_exit(f"--real-calibration takes DEVICE=CSV, not {[c for c in calibrations if '=' not in c][0]!r}")
     for remote in remotes:
-        if remote.name not in guardable:
-            raise usage_exit(f"--real {remote.name}: in the scene {scene!r} the devices that can guard a real one are "
-                             f"{', '.join(sorted(guardable))}")
+        if remote.name not in scene.guardable:
+            raise usage_exit(f"--real {remote.name}: in the scene {scene.name!r} the devices that can guard a real "
+                             f"one are {', '.join(sorted(scene.guardable))}")
     if "ur10" in pairs:
         raise usage_exit("--real-calibration ur10: a robot Thing's moves go to the real arm in its TD's frame, which "
                          "is the real robot's when the twin has a calibration (twinmesh robot --calibration CSV)")
@@ -442,14 +441,16 @@ def _guard_real(specs: list[ProcessSpec], scene: str, real: tuple[str, ...], acc
     try:
         found = take_in_all(remotes, client)
     except IntakeError as e:
-        unreachable = "cannot connect" in str(e) or "no answer in time" in str(e)
-        raise CommandFailed(f"--real: {e}", UNREACHABLE if unreachable else 2) from None
+        raise CommandFailed(f"--real: {e}", UNREACHABLE if e.unreachable else 2) from None
     finally:
         client.close()
-    devices = [RealDevice(remote.name, remote.url, td, pairs.get(remote.name)) for remote, _, td in found]
-    for spec in world:
-        spec.kwargs.update(real=devices, access=access)
-    return [f"{d.slug}-real" for d in devices]
+    return tuple(RealDevice(remote.name, remote.url, td, pairs.get(remote.name)) for remote, _, td in found)
+
+
+def _scenes() -> dict[str, Scene]:
+    from devices.lab.scenes import SCENES
+
+    return SCENES
 
 
 def _prepare_secrets(settings: MeshSettings, things: list[str], joining: bool) -> str | None:

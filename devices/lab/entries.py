@@ -50,7 +50,7 @@ def lights(settings: MeshSettings, stop: threading.Event, **kwargs: Any) -> None
 
 
 def robot(settings: MeshSettings, stop: threading.Event, **kwargs: Any) -> None:
-    from devices.things.robot_thing import run
+    from devices.lab.robot_process import run
 
     run(settings, stop, **kwargs)
 

@@ -29,9 +29,9 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
     `samples`: random configurations the UR10's workspace is sampled with (fewer start faster).
     `real`: the platform devices that guard their real devices, reached with `access` (`devices.things.guard`).
     """
+    from devices.lab.serving import guard_robot, serve_platform
     from devices.sim.layouts.lab import build_lab
     from devices.things.binding import serve
-    from devices.things.guard import guard_robot, serve_platform
     from devices.things.lights import bind_light, light_td
     from devices.things.pan_tilt import bind_pan_tilt, pan_tilt_td
     from devices.things.robot_thing import RobotThing
@@ -54,7 +54,7 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
         session = stack.enter_context(open_session(settings, thing=lab.ur10.name))
         robot = RobotThing(session, settings, lab.ur10, samples=samples)
         for device in real:
-            if device.slug == lab.ur10.name:
+            if device.slug == lab.ur10.name and access is not None:
                 guard_robot(stack, settings, robot, device, access, stop)
         stack.enter_context(robot)
         session = stack.enter_context(open_session(settings, thing="world"))

@@ -1,76 +1,129 @@
-"""Scenes: which processes make up a lab. `twinmesh up SCENE` starts exactly these.
+"""Scenes: which processes make up a lab, which Things it serves, which of its devices can guard a real one.
 
-The `fleet` scene has no fixed list: `--fleet N` virtual devices (devices.things.fleet), spread
-over as many processes as the machine has cores.
+`twinmesh up SCENE` asks the `Scene` for its processes and Things with the `LabOptions` the command line
+gave; no other place knows what a scene holds. The `fleet` scene has no fixed list: `--fleet N` virtual
+devices (devices.things.fleet), spread over as many processes as the machine has cores.
 """
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from devices.lab import entries
 from devices.lab.supervisor import ProcessSpec
+from devices.things.robot_setup import RobotSetup
 from mesh.messages.scene_description import DEFAULT_SAMPLES
 
-FLEET = "fleet"
+if TYPE_CHECKING:
+    from devices.things.guard import RealDevice
+    from mesh.bridge.run import Access
 
-SCENES: dict[str, list[ProcessSpec]] = {
-    "lights": [ProcessSpec("lights", entries.lights, role="lights")],
+DEFAULT_FLEET = 100  # the fleet scene's devices when --fleet is not given
+
+
+@dataclass(frozen=True)
+class LabOptions:
+    """What `up` says about a scene's processes; each scene takes what applies to it."""
+
+    speed: float | None = 1.0       # every simulated world's speed factor (None: as fast as the CPU allows)
+    samples: int | None = None      # every robot's workspace samples (None: each robot's default)
+    fleet: int | None = None        # the fleet scene's size (None: DEFAULT_FLEET)
+    fleet_first: int = 1            # the fleet's first station number
+    processes: int | None = None    # the fleet's processes (None: one per core)
+    real: tuple[RealDevice, ...] = ()  # real devices guarded by their twins (`up --real`)
+    access: Access | None = None    # how the real devices are reached
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One scene of `twinmesh up`: its processes and Things for given options, and the devices of it that
+    can guard a real device (`--real DEVICE=URL`), all said once here."""
+
+    name: str
+    summary: str
+    processes: Callable[[LabOptions], list[ProcessSpec]]
+    things: Callable[[LabOptions], list[str]]
+    guardable: frozenset[str] = field(default_factory=frozenset)
+
+
+LIGHTS = ("light-left", "light-right")
+PLATFORM = ("dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2",
+            "color-sensor", "uarm", "world")
+PLATFORM_DEVICES = frozenset({"dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1",
+                              "infrared-sensor-2", "color-sensor", "uarm"})  # the twins that guard a real device
+UR10 = RobotSetup(urdf="ur10.urdf", name="ur10", scene="table-and-wall")
+
+
+def _lights(o: LabOptions) -> list[ProcessSpec]:
+    return [ProcessSpec("lights", entries.lights, role="lights")]
+
+
+def _iot_platform(o: LabOptions) -> list[ProcessSpec]:
     # one process: the pybullet world and every device of the table, each device its own Zenoh peer
-    "iot-platform": [ProcessSpec("iot-platform", entries.iot_platform, {"speed": 1.0},
-                                 role="world iot-platform")],
+    return [ProcessSpec("iot-platform", entries.iot_platform, {"speed": o.speed, "real": o.real, "access": o.access},
+                        role="world iot-platform")]
+
+
+def _ur10(o: LabOptions) -> list[ProcessSpec]:
     # a generic robot arm (`twinmesh robot`) on a table beside a wall; its TD comes from the tdgen service
-    "ur10": [ProcessSpec("ur10", entries.robot,
-                         {"urdf": "ur10.urdf", "name": "ur10", "scene": "table-and-wall", "speed": 1.0,
-                          "samples": DEFAULT_SAMPLES}, role="robot ur10")],
+    setup = UR10.replace(speed=o.speed, samples=o.samples or DEFAULT_SAMPLES)
+    return [ProcessSpec("ur10", entries.robot, {"setup": setup, "real": o.real, "access": o.access},
+                        role="robot ur10")]
+
+
+def _iot_lab(o: LabOptions) -> list[ProcessSpec]:
     # the whole room: the iot-platform table, the ur10 behind its safety wall, lights and pan-tilts
-    "iot-lab": [ProcessSpec("iot-lab", entries.iot_lab, {"speed": 1.0, "samples": DEFAULT_SAMPLES},
-                            role="world iot-lab")],
-}
+    return [ProcessSpec("iot-lab", entries.iot_lab, {"speed": o.speed, "samples": o.samples or DEFAULT_SAMPLES,
+                                                     "real": o.real, "access": o.access}, role="world iot-lab")]
+
+
+def _fleet(o: LabOptions) -> list[ProcessSpec]:
+    from devices.things.fleet import FleetDevice, split
+
+    parts = split(o.fleet or DEFAULT_FLEET, o.processes or os.cpu_count() or 1)
+    return [ProcessSpec(f"fleet-{i + 1}", entries.fleet, {"start": lo, "end": hi, "first": o.fleet_first},
+                        role=f"fleet {FleetDevice(lo, o.fleet_first).name}..{FleetDevice(hi - 1, o.fleet_first).name}")
+            for i, (lo, hi) in enumerate(parts)]
+
+
+def _fleet_things(o: LabOptions) -> list[str]:
+    from devices.things.fleet import fleet_names
+
+    return fleet_names(o.fleet or DEFAULT_FLEET, o.fleet_first)
+
+
+def _fixed(*things: str) -> Callable[[LabOptions], list[str]]:
+    return lambda o: list(things)
+
+
+FLEET = "fleet"
+SCENES: dict[str, Scene] = {s.name: s for s in [
+    Scene("iot-lab", "the whole room: the IoT platform, the UR10 behind its safety wall, lights and pan-tilts",
+          _iot_lab, _fixed(*PLATFORM, "ur10", *LIGHTS, "pan-tilt-1", "pan-tilt-2"),
+          guardable=PLATFORM_DEVICES | {"ur10"}),
+    Scene("iot-platform", "the IoT platform's table: two belts, two light barriers, a colour sensor, a uArm "
+          "and a Dobot", _iot_platform, _fixed(*PLATFORM), guardable=PLATFORM_DEVICES),
+    Scene("ur10", "a UR10 on a table beside a wall", _ur10, _fixed("ur10"), guardable=frozenset({"ur10"})),
+    Scene("lights", "two lamps, no simulation", _lights, _fixed(*LIGHTS)),
+    Scene(FLEET, "--fleet N virtual devices of four kinds, for load tests", _fleet, _fleet_things),
+]}
 DEFAULT_SCENE = "iot-lab"
 
-LIGHTS = ["light-left", "light-right"]
-PLATFORM = ["dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2",
-            "color-sensor", "uarm", "world"]
-# the Things each scene serves (besides the lab's own `tdgen`): `up` is ready when all answer their TD
-SCENE_THINGS: dict[str, list[str]] = {
-    "lights": LIGHTS,
-    "iot-platform": PLATFORM,
-    "ur10": ["ur10"],
-    "iot-lab": [*PLATFORM, "ur10", *LIGHTS, "pan-tilt-1", "pan-tilt-2"],
-}
 
-
-def scene_things(name: str, fleet: int | None = None, fleet_first: int = 1) -> list[str]:
-    """The Things `twinmesh up NAME` serves, in a stable order (`fleet`: the fleet scene's size)."""
-    if name == FLEET:
-        from devices.things.fleet import DEFAULT_FLEET, fleet_names
-
-        return fleet_names(fleet or DEFAULT_FLEET, fleet_first)
+def find_scene(name: str) -> Scene:
+    """The scene called `name` (KeyError naming the known ones otherwise)."""
     if name not in SCENES:
-        raise KeyError(f"unknown scene {name!r}; known scenes: {', '.join(sorted([*SCENES, FLEET]))}")
-    return list(SCENE_THINGS[name])
+        raise KeyError(f"unknown scene {name!r}; known scenes: {', '.join(sorted(SCENES))}")
+    return SCENES[name]
 
 
-def scene_specs(name: str, speed: float | None = 1.0, samples: int | None = None, fleet: int | None = None,
-                fleet_first: int = 1, processes: int | None = None) -> list[ProcessSpec]:
-    """The processes of a scene; `speed` (None = as fast as possible) goes to every simulated world,
-    `samples` (None = each robot's default) to every robot's workspace sampling; the fleet scene's
-    `fleet` devices (stations numbered from `fleet_first`) go to `processes` processes (default: one per core)."""
-    if name == FLEET:
-        from devices.things.fleet import DEFAULT_FLEET, FleetDevice, split
+def scene_things(name: str, options: LabOptions = LabOptions()) -> list[str]:
+    """The Things `twinmesh up NAME` serves, in a stable order (besides the lab's own `tdgen`)."""
+    return find_scene(name).things(options)
 
-        parts = split(fleet or DEFAULT_FLEET, processes or os.cpu_count() or 1)
-        return [ProcessSpec(f"fleet-{i + 1}", entries.fleet, {"start": lo, "end": hi, "first": fleet_first},
-                            role=f"fleet {FleetDevice(lo, fleet_first).name}..{FleetDevice(hi - 1, fleet_first).name}")
-                for i, (lo, hi) in enumerate(parts)]
-    if name not in SCENES:
-        raise KeyError(f"unknown scene {name!r}; known scenes: {', '.join(sorted([*SCENES, FLEET]))}")
-    specs = []
-    for s in SCENES[name]:
-        kwargs = dict(s.kwargs)
-        if "speed" in kwargs:
-            kwargs["speed"] = speed
-        if "samples" in kwargs and samples is not None:
-            kwargs["samples"] = samples
-        specs.append(ProcessSpec(s.name, s.target, kwargs, s.role))
-    return specs
+
+def scene_specs(name: str, options: LabOptions = LabOptions()) -> list[ProcessSpec]:
+    """The processes of scene `name` for `options`."""
+    return find_scene(name).processes(options)

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from devices.planning.paths import DISTINCT_RAD, PLANNING_BUDGET_S, JointPath, NoPath, PathChecker, find_path
+from mesh.messages.scene_description import CollisionModel
 from mesh.wot.problem import BadInput, Refused, Unavailable
 from tdgen.robot.calibration import Calibration
 from tdgen.robot.collision import CollisionWorld
@@ -123,7 +124,7 @@ class MovePlanner:
     joint step over that joint's velocity limit, times it)."""
 
     def __init__(self, robot: Robot, name: str, scene: Surroundings, frame: TdFrame, *, peak_speed: float,
-                 collision_model: str = "fast", planning_budget: float = PLANNING_BUDGET_S,
+                 collision_model: CollisionModel = "fast", planning_budget: float = PLANNING_BUDGET_S,
                  max_collision_probability: float | None = None, k: int = DEFAULT_K,
                  radius_mm: float = DEFAULT_RADIUS_MM):
         if max_collision_probability is not None and not 0.0 <= max_collision_probability <= 1.0:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from typing import Any, Callable, Literal, Mapping, cast
+from typing import Any, Callable, Mapping
 
 import msgspec
 import numpy as np
@@ -34,7 +34,7 @@ from devices.planning.paths import PLANNING_BUDGET_S
 from devices.sim.compensation import KinematicArm
 from devices.sim.pybullet_world import PEAK_SPEED, PathMotion, Snapshot, World
 from devices.sim.vec import Vec
-from mesh.messages.scene_description import Pose, TwinDescription
+from mesh.messages.scene_description import CollisionModel, Pose, TwinDescription
 from mesh.wot.invocation import ActionCancelled
 from mesh.wot.problem import BadInput, Problem
 from tdgen.robot import points_csv
@@ -101,7 +101,7 @@ class RobotTwin:
                  max_collision_probability: float | None = None, k: int = DEFAULT_K,
                  radius_mm: float = DEFAULT_RADIUS_MM, home: Vec | None = None,
                  workspace_wait: float = 0.0, planning_budget: float = PLANNING_BUDGET_S,
-                 collision_model: str = "fast"):
+                 collision_model: CollisionModel = "fast"):
         self.world, self.robot, self.name, self.base = world, robot, name, base
         self.planner = MovePlanner(robot, name, placed(scene, base), TdFrame(calibration), peak_speed=PEAK_SPEED,
                                    collision_model=collision_model, planning_budget=planning_budget,
@@ -263,7 +263,7 @@ class RobotTwin:
             urdf_dir=str(self.robot.urdf_path.resolve().parent), base=self.base.pose(),
             ee=self.robot.ee_link, base_link=self.robot.base_link, fixed=self.robot.info()["heldJoints"],
             packages=self.robot.packages, allowed_collisions=list(self.robot.allowed_collisions), scene=scene,
-            samples=samples, seed=seed, collision_model=cast(Literal["fast", "exact"], self.planner.collision_model),
+            samples=samples, seed=seed, collision_model=self.planner.collision_model,
             calibration=None if cal is None else [[*t, *r] for t, r in zip(cal.twin, cal.real)],
             frame=self.frame.name, version=self.version)
 

@@ -29,7 +29,6 @@ from devices.sim.dobot import Dobot
 from devices.sim.uarm import Uarm
 from mesh.bridge.remote import RemoteThing
 from mesh.fabric.server import ExposedThing
-from mesh.http.http_client import HttpClient
 from mesh.wot.consumed import NOTHING
 from mesh.wot.problem import BadInput, Problem, Refused
 from mesh.wot.validate import validate
@@ -70,18 +69,6 @@ class Frame:
 
     def to_twin(self, p: Any) -> np.ndarray:
         return (np.asarray(p, dtype=float) - self._t) @ self._a_inv.T
-
-
-def with_real_actions(td: dict[str, Any], real_td: dict[str, Any]) -> dict[str, Any]:
-    """The twin's TD plus the actions the real device has and the twin lacks (forwarded only), as the
-    real TD declares them, forms aside."""
-    out = dict(td)
-    actions = dict(td.get("actions", {}))
-    for name, action in real_td.get("actions", {}).items():
-        if name not in actions:
-            actions[name] = {k: v for k, v in action.items() if k != "forms"}
-    out["actions"] = actions
-    return out
 
 
 class Guard:
@@ -210,23 +197,6 @@ class RobotMirror:
             self.follow_once()
 
 
-def guard_robot(stack: Any, settings: Any, robot: Any, device: RealDevice, access: Any,
-                stopping: threading.Event) -> None:
-    """Put the real robot `device` behind the robot Thing `robot` (before it is exposed), mirror it, and
-    serve it on the mesh as `<name>-real`."""
-    from mesh.bridge.bridged import BridgedThing
-    from mesh.fabric.session import open_session
-
-    client = access.client()
-    stack.callback(client.close)
-    remote = RemoteThing(device.td, client, device.url)
-    guard = robot_guard(robot, remote)
-    guard.install(set(robot.thing.td.actions))
-    RobotMirror(robot.twin, remote, guard, stopping).start()
-    session = stack.enter_context(open_session(settings, thing=f"{device.slug}-real"))
-    stack.enter_context(BridgedThing(session, f"{device.slug}-real", remote, device.td, settings.keys))
-
-
 class UarmMirror:
     """Keeps the uArm twin where the real arm reports it is (see the module docstring)."""
 
@@ -267,38 +237,3 @@ class UarmMirror:
     def _run(self) -> None:
         while not self._stopping.wait(MIRROR_EVERY):
             self.follow_once()
-
-
-def serve_platform(stack: Any, settings: Any, platform: Any, real: list[RealDevice], access: Any,
-                   stopping: threading.Event) -> None:
-    """Expose every device of `platform` on its own session (entered on `stack`); those in `real` guarded,
-    each with its real device also on the mesh as `<slug>-real` (the recorder, the live view and the
-    control page show real and twin side by side)."""
-    from devices.things.binding import serve
-    from devices.things.platform_things import PLATFORM_DEVICES, bind_device, platform_thing, twin_td
-    from mesh.bridge.bridged import BridgedThing
-    from mesh.fabric.session import open_session
-
-    guarded = {r.slug: r for r in real if r.slug in PLATFORM_DEVICES}
-    client = access.client() if guarded else HttpClient()
-    stack.callback(client.close)
-    for slug in PLATFORM_DEVICES:
-        session = stack.enter_context(open_session(settings, thing=slug))
-        device = guarded.get(slug)
-        thing = platform_thing(session, slug, settings.keys, real_td=None if device is None else device.td)
-        cleanup = bind_device(thing, platform.devices[slug])
-        if device is not None:
-            remote = RemoteThing(device.td, client, device.url)
-            twin = platform.devices[slug]
-            frame = Frame(device.calibration)
-            if isinstance(twin, Uarm):
-                guard = uarm_guard(thing, remote, twin, frame)
-                UarmMirror(twin, remote, guard, frame, stopping).start()
-            elif isinstance(twin, Dobot):
-                guard = dobot_guard(thing, remote, twin)
-            else:
-                guard = Guard(thing, remote, {})
-            guard.install(set(twin_td(slug).actions))
-            real_session = stack.enter_context(open_session(settings, thing=f"{slug}-real"))
-            stack.enter_context(BridgedThing(real_session, f"{slug}-real", remote, device.td, settings.keys))
-        serve(stack, thing, cleanup)

@@ -106,9 +106,19 @@ def platform_thing(session, slug: str, keys: Keys | None = None,
     actions it lacks (their handlers are the guard's)."""
     if real_td is None:
         return ExposedThing(session, twin_td(slug), slug, keys)
-    from devices.things.guard import with_real_actions
-
     return ExposedThing(session, with_real_actions(json.loads(twin_td_json(slug)), real_td), slug, keys)
+
+
+def with_real_actions(td: dict[str, Any], real_td: dict[str, Any]) -> dict[str, Any]:
+    """The twin's TD plus the actions the real device has and the twin lacks (forwarded only), as the
+    real TD declares them, forms aside."""
+    out = dict(td)
+    actions = dict(td.get("actions", {}))
+    for name, action in real_td.get("actions", {}).items():
+        if name not in actions:
+            actions[name] = {k: v for k, v in action.items() if k != "forms"}
+    out["actions"] = actions
+    return out
 
 
 def bind_device(thing: ExposedThing, device: Belt | InfraredSensor | ColorSensor | Uarm | Dobot) -> Cleanup:

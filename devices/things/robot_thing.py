@@ -30,9 +30,8 @@ import hashlib
 import logging
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import ExitStack
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
@@ -44,11 +43,10 @@ from mesh.messages.scene_description import DEFAULT_SAMPLES, TWIN_CHANGED, TWIN_
 from mesh.wot.problem import BadInput, Problem
 from mesh.wot.thing_description import ThingDescription, decode_td
 from tdgen.robot import points_csv
-from tdgen.robot_td import ARTEFACTS, URDF_TYPE, policy, robot_td, slug
+from tdgen.robot_td import ARTEFACTS, URDF_TYPE, policy, robot_td
 
 if TYPE_CHECKING:  # pybullet loads with devices.sim.robot_twin: `twinmesh --help` need not wait for it
     from devices.sim.robot_twin import RobotTwin
-    from tdgen.robot.surroundings import RobotPlacement
     from tdgen.robot.workspace_check import Workspace
 
 log = logging.getLogger(__name__)
@@ -300,59 +298,3 @@ class RobotThing:
 
     def _scene_changed(self, version: int) -> None:
         self.thing.emit_event(TWIN_CHANGED, {"robot": self.name, "version": version})
-
-
-# --- the process ---------------------------------------------------------------------------------
-def run(settings: MeshSettings, stop: threading.Event, urdf: str, name: str | None = None, scene: str | None = None,
-        base: RobotPlacement | None = None, samples: int = DEFAULT_SAMPLES, seed: int = 0,
-        ee: str | None = None, calibration: str | None = None, max_collision_probability: float | None = None,
-        speed: float | None = 1.0, planning_budget: float = 1.0, base_link: str | None = None,
-        fixed: dict[str, float] | None = None, packages: dict[str, str] | None = None,
-        allowed_collisions: tuple[tuple[str, str], ...] = (), surface: bool = True,
-        scene_robot: str | None = None, announce: Callable[[str], None] | None = None,
-        real: Sequence[Any] = (), access: Any = None, collision_model: str = "fast") -> None:
-    """Process entry: one robot in its own World (its scene's static bodies loaded) until `stop` is set.
-
-    `base` is where the robot stands in the scene frame (default: the scene's robot placement);
-    without a scene it stands on its mounting surface unless `surface` is False. `speed` None runs
-    the simulation as fast as possible. `real`: the real robot this twin guards (`devices.things.guard`),
-    reached with `access`. `collision_model` "fast" or "exact" decides collisions for the workspace's
-    samples, the target checks and the planner alike.
-    """
-    from devices.sim.pybullet_world import World
-    from devices.sim.robot_twin import WORKSPACE_WAIT, Base, RobotTwin
-    from mesh.fabric.session import open_session
-    from tdgen.robot.calibration import load_calibration
-    from tdgen.robot.model import Robot
-    from tdgen.robot.surroundings import build_into, default_scene, load_scene
-
-    robot = Robot.load(urdf, ee=ee, base_link=base_link, fixed=fixed,
-                       packages={k: Path(v) for k, v in (packages or {}).items()}, allowed_collisions=allowed_collisions)
-    for line in [robot.describe_chain(), *robot.notes()]:
-        (announce or log.info)(f"{robot.name}: {line}")
-    the_scene = load_scene(scene, scene_robot) if scene else default_scene(base, surface, robot.reach())
-    placement = base or the_scene.robot
-    where = Base(placement.position, placement.yaw, placement.roll, placement.pitch)
-    cal = load_calibration(calibration) if calibration else None
-    world = World(speed=speed)
-    with ExitStack() as stack:
-        stack.callback(world.close)
-        build_into(the_scene, world.client)
-        world.start()
-        twin = RobotTwin(world, robot, name or slug(robot.name), where, the_scene, calibration=cal,
-                         max_collision_probability=max_collision_probability, workspace_wait=WORKSPACE_WAIT,
-                         planning_budget=planning_budget, collision_model=collision_model)
-        stack.callback(twin.close)
-        session = stack.enter_context(open_session(settings, thing=twin.name))
-        thing = RobotThing(session, settings, twin, samples=samples, seed=seed)
-        for device in real:
-            from devices.things.guard import guard_robot
-
-            guard_robot(stack, settings, thing, device, access, stop)
-        stack.enter_context(thing)
-        stack.callback(world.close)  # first on the way out: pending motions fail, their handlers answer
-        log.info("%s: %s on the mesh (speed %s)", twin.name, robot.name, "max" if speed is None else f"{speed:g}")
-        world.on_death(stop.set)
-        stop.wait()
-        if not world.stepping:
-            raise SystemExit(f"{twin.name}: the simulation stopped stepping; see the log above")

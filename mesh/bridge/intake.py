@@ -12,14 +12,21 @@ from urllib.parse import urljoin
 
 import msgspec
 
-from mesh.wot.problem import Problem
+from mesh.wot.problem import UNREACHABLE, Problem
 from mesh.wot.thing_description import decode_td
 
 TD_SCHEMA = "td-1.1-json-schema-validation.json"  # W3C's, shipped (mesh/wot/schemas/SOURCE.md)
 
 
 class IntakeError(ValueError):
-    """A TD that cannot be taken in; the message names the source and the first problem."""
+    """A TD that cannot be taken in; the message names the source and the first problem.
+
+    `unreachable`: the source did not answer (no connection, or no answer in time), as opposed to
+    answering something unusable: a command exits with UNREACHABLE for the first, 2 for the second."""
+
+    def __init__(self, message: str, unreachable: bool = False):
+        super().__init__(message)
+        self.unreachable = unreachable
 
 
 def is_url(source: str) -> bool:
@@ -35,7 +42,7 @@ def fetch_document(source: str, client: Any | None = None) -> dict[str, Any]:
         try:
             doc = client.fetch_td(source)
         except Problem as p:
-            raise IntakeError(f"{source}: {_fetch_problem(p)}") from None
+            raise IntakeError(f"{source}: {_fetch_problem(p)}", unreachable=p.reason == UNREACHABLE) from None
     else:
         try:
             doc = json.loads(Path(source).read_text(encoding="utf-8"))

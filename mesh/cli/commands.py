@@ -248,8 +248,7 @@ def bridge(settings: MeshSettings, remotes: tuple[str, ...], auth: str | None, c
     try:
         found = take_in_all(parsed, client)
     except IntakeError as e:
-        unreachable = "cannot connect" in str(e) or "no answer in time" in str(e)
-        raise CommandFailed(str(e), UNREACHABLE if unreachable else 2) from None
+        raise CommandFailed(str(e), UNREACHABLE if e.unreachable else 2) from None
     stop = install_stop_handlers()
 
     def ready() -> None:

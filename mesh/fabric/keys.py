@@ -4,15 +4,12 @@ Everything that builds or parses a key goes through here, so the layout lives in
 """
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from typing import Literal
 
-from mesh.wot.names import escaped, unescaped
+from mesh.wot.names import NAME, SLUG, escaped, unescaped
 
 DEFAULT_PREFIX = "wot"
-SLUG = re.compile(r"^[a-z0-9]+(?:-[a-z0-9]+)*\Z")  # \Z, not $: "name\n" is no slug
-NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*\Z")
 
 Kind = Literal["properties", "actions", "events", "files"]
 KINDS: tuple[Kind, ...] = ("properties", "actions", "events", "files")

@@ -9,8 +9,8 @@ from typing import Any
 from starlette.requests import Request
 
 from mesh.http.credentials import Auth
-from mesh.http.gateway import SLUG, Registry
-from mesh.wot.names import unescaped
+from mesh.http.gateway import Registry
+from mesh.wot.names import SLUG, unescaped
 from mesh.wot.problem import NotFound
 from mesh.wot.thing_description import NOSEC, AffordanceKind, Security, ThingDescription
 

@@ -34,11 +34,9 @@ import msgspec
 
 from mesh.fabric.directory import Directory
 from mesh.fabric.drain import Drained
-from mesh.fabric.keys import NAME as NAME  # the names a key may hold: the routes check them
-from mesh.fabric.keys import SLUG as SLUG
 from mesh.fabric.mesh_client import MeshClient, Reply
 from mesh.fabric.session import open_session
-from mesh.fabric.settings import MeshSettings as MeshSettings  # the adapter's settings, for the server
+from mesh.fabric.settings import MeshSettings
 from mesh.http.observers import Change, Feed, Observers
 from mesh.http.problems import unavailable
 from mesh.http.tdrewrite import served_id, with_types

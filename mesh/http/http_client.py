@@ -20,7 +20,7 @@ import msgspec
 from mesh.http.credentials import parse_auth as parse_credentials
 from mesh.wot.consumed import NOTHING, Callback
 from mesh.wot.invocation import ActionStatus
-from mesh.wot.problem import BadGateway, Problem, TimedOut, Unavailable
+from mesh.wot.problem import UNREACHABLE, BadGateway, Problem, TimedOut, Unavailable
 from mesh.wot.thing_description import Form
 
 DEFAULT_METHODS = {"readproperty": "GET", "writeproperty": "PUT", "invokeaction": "POST",
@@ -85,14 +85,15 @@ class HttpClient:
         try:
             r = self.http.request(method, href or form.href, timeout=timeout or httpx.USE_CLIENT_DEFAULT, **kwargs)
         except httpx.ConnectTimeout as e:
-            raise Unavailable(f"{method} {href or form.href}: cannot connect ({e or 'timed out'})") from None
+            raise Unavailable(f"{method} {href or form.href}: cannot connect ({e or 'timed out'})",
+                              reason=UNREACHABLE) from None
         except httpx.TimeoutException as e:
-            raise TimedOut(f"{method} {href or form.href}: no answer in time ({e})") from None
+            raise TimedOut(f"{method} {href or form.href}: no answer in time ({e})", reason=UNREACHABLE) from None
         except httpx.ConnectError as e:
             if "CERTIFICATE_VERIFY_FAILED" in str(e):
                 raise BadGateway(f"{method} {href or form.href}: its TLS certificate is not trusted ({e})",
                                  reason="tls-untrusted") from None
-            raise Unavailable(f"{method} {href or form.href}: cannot connect ({e})") from None
+            raise Unavailable(f"{method} {href or form.href}: cannot connect ({e})", reason=UNREACHABLE) from None
         except httpx.HTTPError as e:
             raise BadGateway(f"{method} {href or form.href}: {e}") from None
         if r.status_code >= 400:

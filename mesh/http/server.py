@@ -17,9 +17,10 @@ from typing import Iterator
 
 import uvicorn
 
+from mesh.fabric.settings import MeshSettings  # the adapter process's settings: a value, not the binding
 from mesh.http.app import create_asgi
 from mesh.http.credentials import parse_auth
-from mesh.http.gateway import MeshSettings, Registry, open_registry
+from mesh.http.gateway import Registry, open_registry
 
 log = logging.getLogger(__name__)
 GRACE = 1.0  # seconds in-flight requests get once stop is set

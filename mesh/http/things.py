@@ -28,9 +28,10 @@ from starlette.responses import Response
 from starlette.routing import Route
 
 from mesh.http.context import base_url, registry, security, thing_name
-from mesh.http.gateway import DIRECTORY, NAME
+from mesh.http.gateway import DIRECTORY
 from mesh.http.streams import EventStream
 from mesh.http.tdrewrite import LD_JSON, TD_JSON, directory_td, http_td, served_id
+from mesh.wot.names import NAME
 from mesh.wot.problem import BadInput, NotFound, Problem
 from mesh.wot.thing_description import JSON
 

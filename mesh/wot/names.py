@@ -10,6 +10,8 @@ import re
 from urllib.parse import quote, unquote
 
 PLAIN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*\Z")
+NAME = PLAIN  # the affordance names a key chunk holds as they are
+SLUG = re.compile(r"^[a-z0-9]+(?:-[a-z0-9]+)*\Z")  # a Thing's name on the mesh; \Z, not $: "name\n" is no slug
 SAFE = "-._~!&'()+,;=:@"  # kept as they are (besides letters and digits): valid in a key chunk and a path
 WILDCARDS = ("*", "**")
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import msgspec
 
 PROBLEM_BASE = "https://twinmesh.dev/problems/"
+UNREACHABLE = "unreachable"  # the `reason` of a 503/504 whose server never answered (no connection, no answer in time)
 
 
 class ProblemDetails(msgspec.Struct, omit_defaults=True):

@@ -9,30 +9,13 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import click
 
-from tdgen.robot.model import Robot
+from tdgen.robot.arm_choice import ArmChoice
 from tdgen.robot.surroundings import RobotPlacement
-
-
-@dataclass(frozen=True)
-class ArmChoice:
-    """What the options chose; `load` reads the URDF with it."""
-
-    ee: str | None = None
-    base_link: str | None = None
-    fixed: dict[str, float] = field(default_factory=dict)     # deg or mm
-    packages: dict[str, str] = field(default_factory=dict)    # ROS package name -> directory
-    allowed_collisions: tuple[tuple[str, str], ...] = ()      # link pairs whose contact does not count
-
-    def load(self, urdf: str | Path) -> Robot:
-        return Robot.load(urdf, ee=self.ee, base_link=self.base_link, fixed=self.fixed,
-                          packages={k: Path(v) for k, v in self.packages.items()},
-                          allowed_collisions=self.allowed_collisions)
 
 
 def _pairs(option: str, values: tuple[str, ...], number: bool) -> dict[str, Any]:

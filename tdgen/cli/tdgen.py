@@ -12,7 +12,7 @@ import click
 
 from mesh.cli.exits import usage_exit
 from mesh.http.credentials import Auth
-from mesh.messages.scene_description import DEFAULT_SAMPLES
+from mesh.messages.scene_description import DEFAULT_SAMPLES, CollisionModel
 from mesh.wot.thing_description import NOSEC
 from tdgen.cli.arm_options import ArmChoice, arm_options, mount_options
 from tdgen.cli.counts import SampleCount
@@ -65,7 +65,8 @@ SECURITY = {"nosec": NOSEC, "basic": Auth("basic", "").security(), "bearer": Aut
 def tdgen_command(urdf: str, scene: str | None, samples: int, seed: int, out_dir: str | None, base_url: str | None,
                   calibration: str | None, calibration_model: str, frame: str, arm: ArmChoice, concave: bool,
                   name: str | None, thing_id: str | None, workers: int | None, no_progress: bool, security: str,
-                  mount: RobotPlacement | None, surface: bool, scene_robot: str | None, collision_model: str) -> None:
+                  mount: RobotPlacement | None, surface: bool, scene_robot: str | None,
+                  collision_model: CollisionModel) -> None:
     """Generate a robot's Thing Description and workspace artefacts from its URDF and its scene."""
     try:
         robot = arm.load(urdf)
