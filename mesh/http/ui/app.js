@@ -141,7 +141,8 @@ function propertyRow(card, name, p) {
   const value = $("output", { class: "value", "data-thing": card.name, "data-property": name, text: "…" });
   card.outputs.set(name, { el: value, schema: p });
   const unit = unitSymbol(p);
-  const row = $("div", { class: `prop${p.observable ? " live" : ""}`, "data-property": name },
+  const shape = ["object", "array"].includes(p.type) || p.oneOf ? " structured" : "";
+  const row = $("div", { class: `prop${p.observable ? " live" : ""}${shape}`, "data-property": name },
     $("span", { class: "name", title: [p.title, p.description, p.observable ? "(live)" : "(read again while on screen)"]
       .filter(Boolean).join("\n"), text: labelOf(name, p, card.td.properties) }),
     $("span", { class: "reading" }, value, unit && typeof p.type === "string" && !["object", "array"].includes(p.type)
