@@ -14,7 +14,7 @@ import msgspec
 
 from devices.lab import entries
 from devices.lab.supervisor import ProcessSpec, Supervisor, die_with_parent, follows_its_starter
-from mesh.cli import commands, completion
+from mesh.cli import commands, completion, replay
 from mesh.cli.commands import AUTH_HELP, checked_auth, echo_json, host_port, parse_json
 from mesh.cli.consumers import mesh_client
 from mesh.cli.exits import UNREACHABLE, CommandFailed, usage_exit
@@ -584,3 +584,4 @@ def plan(settings: MeshSettings, thing: str, xyz: tuple[float, ...], joints: str
 for _command in (commands.router, commands.adapter, commands.record, commands.things, commands.td, commands.read,
                  commands.write, commands.invoke, commands.observe, commands.subscribe, commands.bridge):
     main.add_command(_command)
+main.add_command(replay.replay)

@@ -2,6 +2,7 @@
 fails): Rerun's own `rrd optimize` reads what was written and writes a complete file."""
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -28,11 +29,13 @@ def repair_recording(path: str | Path) -> str:
         raise RepairError(f"{path}: no such recording")
     rerun = rerun_cli()
     fixed = path.with_name(path.name + ".repairing")
-    done = subprocess.run([rerun, "rrd", "optimize", str(path), "-o", str(fixed)], capture_output=True, text=True)
+    env = {**os.environ, "CI": "1"}  # Rerun's analytics off (mesh.recorder.replay.NO_USAGE_DATA)
+    done = subprocess.run([rerun, "rrd", "optimize", str(path), "-o", str(fixed)], capture_output=True, text=True,
+                          env=env)
     if done.returncode != 0 or not fixed.exists():
         fixed.unlink(missing_ok=True)
         raise RepairError(f"{path}: rerun could not read it ({(done.stderr or done.stdout).strip()[-300:]})")
-    verified = subprocess.run([rerun, "rrd", "verify", str(fixed)], capture_output=True, text=True)
+    verified = subprocess.run([rerun, "rrd", "verify", str(fixed)], capture_output=True, text=True, env=env)
     if verified.returncode != 0:
         fixed.unlink(missing_ok=True)
         raise RepairError(f"{path}: the repaired file does not verify ({verified.stderr.strip()[-300:]})")
