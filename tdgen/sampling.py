@@ -133,8 +133,8 @@ def _fast(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarra
 
     pybullet's test takes one core (and the GIL) for the unsure ones. Once those pending would keep it
     busy as long as the compiled loop needs for the rest on one core fewer, the rest runs on a thread,
-    on one core fewer, while this thread checks them (1,000,000 UR10 samples in table-and-wall: the
-    last 14 % of the loop runs beside 0.33 s of the 0.38 s of exact checks, 0.1-0.15 s sooner done).
+    on one core fewer, while this thread checks them, so the two end together (what it saves:
+    docs/benchmarks.md).
     The answers are the same whatever runs when."""
     import numba
 

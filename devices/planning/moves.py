@@ -37,7 +37,7 @@ from tdgen.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM, Workspace
 
 IK_SEEDS = 24       # IK runs per Cartesian target: from the current configuration and from random starts
 IK_RESTARTS = 20    # random restarts each run may take before it gives up
-QUICK_RESTARTS = 16  # random restarts of the first IK run, from where the arm stands (an unreachable target: 65 -> 8 ms)
+QUICK_RESTARTS = 16  # random restarts of the first IK run, from where the arm stands (an unreachable one: given up sooner)
 POSE_SOLUTIONS = 4  # pose IK solutions looked for (the first from the current configuration), collision-free ones kept
 POSE_RESTARTS = 60  # random restarts per pose IK run
 TRACE_STEPS = 8    # end-effector points per path segment in a move's answer (`path.tip`)

@@ -15,8 +15,8 @@ Mode = Literal["peer", "client", "router"]
 # Zenoh expires a link after the lease its *other* end announced, and each end sends keep-alives every
 # own lease / 4. A router that joins another host's lab (or a robot that joins it directly, `robot
 # --join`) announces a short lease, so that the lab sees a cut cable within 1.5 s. No other process
-# does: the lab's router would send each of its local clients a keep-alive every 0.375 s (a fleet of
-# 1,000: 2,700 messages/s, 12 % of a core at idle).
+# does: the lab's router would send each of its local clients a keep-alive every 0.375 s (a fleet's
+# worth of messages at idle; the figure: docs/benchmarks.md).
 JOINING_LEASE_MS = 1500
 # Everything else, the lab's router and every client (a device, a service), announces a long lease:
 # a link is expired only after 60 s of silence, and a keep-alive goes every 15 s. A process on the
@@ -28,7 +28,7 @@ LOCAL_LEASE_MS = 60_000
 ROUTER_MAX_SESSIONS = 100_000  # Zenoh's default (1,000) would cap a host at 1,000 devices
 # Zenoh closes a dead link's TCP socket with a 10 s linger, synchronously, on one of its 2 receive
 # threads (zenoh#1101, zenoh#2718): a cut host's two links (its router, a robot joined directly) held
-# both, and the lab's router forwarded nothing for 5-10 s, its own devices' reads included. The
+# both, and the lab's router forwarded nothing until the linger ended, its own devices' reads included. The
 # router gets 16 receive threads: as many links can die at once before one healthy link waits.
 ROUTER_RUNTIME = "(rx: (worker_threads: 16))"  # Zenoh's runtime settings (ZENOH_RUNTIME), for routers
 # A part's session waits for its router at most this long per attempt, then `open_session` tries
@@ -49,7 +49,7 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     link and one descriptor per device, whatever the number of devices), not a *peer* (peers link
     to every other peer: N²/2 links). Shared memory is off unless asked for: the mesh carries small
     JSON, and each shared-memory link costs segments and descriptors (with it, a router took
-    only 350 local sessions). `wait_for_router`: a lab's parts wait (retrying every 0.25..1 s, a new
+    far fewer local sessions). `wait_for_router`: a lab's parts wait (retrying every 0.25..1 s, a new
     session every 30 s) for their router, which starts beside them and may restart; one-shot commands fail at once.
 
     `secrets` (a directory, `mesh.fabric.secrets`): the lab is secure: TLS with mutual

@@ -51,7 +51,7 @@ _ROBOT_PARTS: dict[int, tuple[weakref.ref[Robot], dict[tuple[bytes, bool], tuple
 
 def _robot_part(world: CollisionWorld) -> tuple:
     """`SphereModel.robot_part`, made once per robot, placement and kind of world: a live scene change
-    builds a model of the same robot again (its spheres take 15 ms to fit)."""
+    builds a model of the same robot again (fitting its spheres is the slow part)."""
     import msgspec
 
     key = (msgspec.json.encode(world.scene.robot), world.part)
@@ -226,8 +226,8 @@ class SphereModel:
     def verdicts_of_values(self, values: np.ndarray, tip: str, tips: np.ndarray) -> np.ndarray:
         """`verdicts` of joint values made beforehand (`frames.values`), link `tip`'s origins into `tips`
         (world frame: `frames.to_base` them): nothing but the compiled loop, which holds no GIL, so it runs
-        at full speed on a thread beside Python work (numpy's steps in `verdicts` waited for the GIL up to
-        5 ms each behind a busy thread: 100 ms per chunk)."""
+        at full speed on a thread beside Python work (numpy's steps in `verdicts` wait for the GIL behind
+        a busy thread)."""
         slot = self.frames.names.index(tip)
         out = np.empty(len(values), dtype=np.int8)
         for start in range(0, len(values), CHUNK):
@@ -294,7 +294,7 @@ class FastCollision:
     """The exact test's answers at the sphere model's speed: a `CollisionWorld` and its `SphereModel`."""
 
     def __init__(self, world: CollisionWorld, warm: bool = False):
-        """`warm`: load (on a machine's first use: compile, 10-20 s) the one-state code now, not in a
+        """`warm`: load (on a machine's first use: compile, which takes seconds) the one-state code now, not in a
         planner's first check, whose time budget it would eat. A world that holds `part` of a scene
         has no self pairs (`CollisionWorld`)."""
         self.world = world

@@ -28,8 +28,7 @@ def encode(robot: Robot, positions: np.ndarray, collision: np.ndarray, q: np.nda
     or mm with 6 decimals (each value rounded half to even at its last decimal).
 
     Two passes on all cores: each block's length, then each block formatted where it starts, into the
-    one buffer returned (1,000,000 rows, 94 MB: 0.17 s; formatting blocks into spare room and joining
-    them took 0.35 s, numpy's savetxt 3 s)."""
+    one buffer returned: no join of per-block buffers, no numpy savetxt (both slower: docs/benchmarks.md)."""
     joints = np.ascontiguousarray(robot.to_user_units(q), dtype=float).reshape(len(q), len(robot.joints))
     header = (",".join([*HEADER, *(j.name for j in robot.joints)]) + "\n").encode()
     positions = np.ascontiguousarray(positions, dtype=float)
@@ -177,7 +176,7 @@ class Flags:
 
     @property
     def data(self) -> bytes | bytearray:
-        """The file's bytes (re-flagged on first use: one copy, 8 ms for 7.5 MB)."""
+        """The file's bytes (re-flagged on first use: one copy)."""
         if self._flags is not None:
             buf = bytearray(self._data)
             np.frombuffer(buf, dtype=np.uint8)[self.offsets] = self._flags
