@@ -1,10 +1,30 @@
-"""Shared fixtures; test helpers (`labs`, `tdschema`, `interop`) import from this folder."""
+"""Shared fixtures: one lab per scene per test session, lent to each module that needs it.
+
+Starting a lab is most of a lab test's time, so the modules that used to start the same `lights` lab
+(or `iot-platform --speed max`) borrow one started once here. A module gets it as the scene starts:
+the lights off and white, the platform's world reset; what the module started on the lab's mesh
+(robots, devices, recorders: `lab.spawn`) is stopped when the module ends, and the lab's own Things
+must be listed alone again before the next module borrows it. The lab stops with the session, and
+must stop cleanly.
+
+Test helpers (`labs`, `waiting`, `probe`, `recordings`, `arms`, `zoo`, `tdschema`, `interop`) are
+modules of this folder: test modules import from them, never from each other.
+"""
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
+import httpx
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
+
+from labs import PLATFORM_THINGS, Lab, start_lab, start_robot_lab  # noqa: E402
+from waiting import eventually  # noqa: E402
+
+LIGHTS_THINGS = frozenset({"light-left", "light-right", "tdgen"})  # `up` always starts the TD generator
+PLATFORM_LISTED = PLATFORM_THINGS | {"tdgen"}
 
 
 @pytest.fixture(scope="session")
@@ -21,3 +41,64 @@ def scene():
     from tdgen.robot.surroundings import load_scene
 
     return load_scene("table-and-wall")
+
+
+def _listed(lab: Lab) -> set[str]:
+    return {td["title"] for td in httpx.get(f"{lab.http}/things", timeout=30).json()}
+
+
+@contextmanager
+def lend(lab: Lab, things: frozenset[str], reset) -> Iterator[Lab]:
+    """`lab` for one module: reset first; afterwards what the module spawned is stopped and only the
+    lab's own `things` are listed (a Thing that leaves is gone from the listing once its token is)."""
+    eventually(lambda: _listed(lab) == things, timeout=120, what=f"only {sorted(things)} listed")
+    reset(lab)
+    try:
+        yield lab
+    finally:
+        clean = lab.stop_extra()
+        assert lab.proc.poll() is None, f"the shared lab exited\n{lab.log.read_text()[-4000:]}"
+        assert clean, "a process the module started on the shared lab did not stop on Ctrl-C"
+
+
+def _lights_off(lab: Lab) -> None:
+    for light in ("light-left", "light-right"):
+        r = httpx.put(f"{lab.http}/{light}/properties", json={"lightState": False, "lightColor": [1.0, 1.0, 1.0]},
+                      timeout=30)
+        assert r.status_code == 204, r.text
+
+
+def _world_reset(lab: Lab) -> None:
+    r = httpx.post(f"{lab.http}/world/actions/reset", timeout=120)
+    assert r.status_code in (200, 204), r.text
+
+
+@pytest.fixture(scope="session")
+def lights_lab(tmp_path_factory) -> Iterator[Lab]:
+    """`twinmesh up lights` with the adapter and a tdgen cache (`start_robot_lab`): robots may join it."""
+    lab = start_robot_lab(tmp_path_factory.mktemp("shared-lights"))
+    yield lab
+    assert lab.stop(), "the shared lights lab did not stop cleanly on Ctrl-C"
+
+
+@pytest.fixture(scope="module")
+def lights(lights_lab) -> Iterator[Lab]:
+    """The shared lights lab, lights off and white, for this module."""
+    with lend(lights_lab, LIGHTS_THINGS, _lights_off) as lab:
+        yield lab
+
+
+@pytest.fixture(scope="session")
+def platform_lab(tmp_path_factory) -> Iterator[Lab]:
+    """`twinmesh up iot-platform --speed max` with the adapter."""
+    lab = start_lab(tmp_path_factory.mktemp("shared-platform"), "iot-platform", http=True, things=set(PLATFORM_LISTED),
+                    extra_args=("--speed", "max"))
+    yield lab
+    assert lab.stop(), "the shared iot-platform lab did not stop cleanly on Ctrl-C"
+
+
+@pytest.fixture(scope="module")
+def platform(platform_lab) -> Iterator[Lab]:
+    """The shared iot-platform lab, its world reset (cubes in the warehouse, arms home, belts stopped)."""
+    with lend(platform_lab, PLATFORM_LISTED, _world_reset) as lab:
+        yield lab

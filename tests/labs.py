@@ -103,6 +103,14 @@ class Lab:
             time.sleep(0.2)
         raise AssertionError(f"adapter not serving {path} within {timeout} s\n{self.log.read_text()[-4000:]}")
 
+    def stop_extra(self, timeout: float = 30.0) -> bool:
+        """Ctrl-C what was started on this lab's mesh (`spawn`), not the lab: a shared lab is handed back
+        as it was lent. True when every one exited on its own."""
+        clean = True
+        while self.extra:
+            clean &= stop_process(self.extra.pop(), timeout)
+        return clean
+
     def stop(self, timeout: float = 30.0) -> bool:
         """Ctrl-C everything; True when every process exited on its own."""
         clean = True

@@ -9,7 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import httpx
 import pytest
-from labs import mesh_client, start_robot_lab
+from labs import mesh_client
 
 from mesh.wot.invocation import Invocations
 from mesh.wot.problem import BadInput, Conflict, NotFound
@@ -22,8 +22,8 @@ JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_j
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_robot_lab(tmp_path_factory.mktemp("async"))
+def lab(lights):  # the session's lights lab, lent to this module (conftest.py)
+    lab = lights
     lab.spawn("robot", "ur10.urdf", "--name", "ur10", "--samples", "3000", "--speed", "0.25",
               log=lab.tmp / "ur10.log")
     deadline = time.monotonic() + 120
@@ -34,7 +34,6 @@ def lab(tmp_path_factory):
     else:
         raise AssertionError((lab.tmp / "ur10.log").read_text()[-3000:])
     yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
 
 
 @pytest.fixture

@@ -15,7 +15,6 @@ from pathlib import Path
 import httpx
 import pytest
 from interop import npm
-from labs import start_lab
 
 pytestmark = [pytest.mark.lab, pytest.mark.interop, pytest.mark.timeout(600)]
 
@@ -36,10 +35,8 @@ def real_lab():
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("bridge"), "lights", things={"light-left"})
-    yield lab
-    lab.stop()
+def lab(lights):
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 @pytest.fixture(scope="module")

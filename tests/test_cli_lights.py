@@ -7,13 +7,12 @@ import time
 import pytest
 from labs import REPO, start_lab, twinmesh_cmd
 
+pytestmark = pytest.mark.lab
+
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("lights"), "lights", http=False,
-                    things={"light-left", "light-right", "tdgen"})
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly on Ctrl-C"
+def lab(lights):
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 def test_things_lists_both_lights_and_the_td_generator(lab):
@@ -93,8 +92,6 @@ import sys, time
 sys.path.insert(0, {tests!r})
 from pathlib import Path
 from labs import start_lab
-
-pytestmark = pytest.mark.lab
 lab = start_lab(Path({tmp!r}), "lights", http=False, things={{"light-left"}})
 print(lab.proc.pid, flush=True)
 time.sleep(600)

@@ -9,7 +9,6 @@ from contextlib import contextmanager
 
 import pytest
 from interop import npm
-from labs import start_lab
 
 import mesh
 from mesh.wot.consumed import Inbox
@@ -21,10 +20,8 @@ WAIT = 5.0  # s for a notification to arrive (hang detection, not a timing goal)
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("consume"), "lights", http=True, things={"light-left", "light-right"})
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(lights):
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 @contextmanager

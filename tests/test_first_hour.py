@@ -10,16 +10,14 @@ import time
 import httpx
 import psutil
 import pytest
-from labs import REPO, free_port, spawn_up, start_lab, twinmesh_cmd, wait_ready
+from labs import REPO, free_port, spawn_up, twinmesh_cmd, wait_ready
 
 pytestmark = pytest.mark.lab
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("first-hour"), "lights", things={"light-left", "light-right", "tdgen"})
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly on Ctrl-C"
+def lab(lights):
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 def run_up(endpoint: str, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:

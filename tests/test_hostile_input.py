@@ -11,7 +11,7 @@ import httpx
 import msgspec
 import psutil
 import pytest
-from labs import REPO, free_port, spawn_up, start_lab, twinmesh_cmd, wait_ready
+from labs import REPO, free_port, spawn_up, twinmesh_cmd, wait_ready
 
 from recordings import RERUN, scalars, wait_for_line
 
@@ -23,10 +23,8 @@ HUGE = b"9" * 400
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("hostile"), "lights", things={"light-left", "light-right", "tdgen"})
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly on Ctrl-C"
+def lab(lights):
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 @pytest.fixture

@@ -9,7 +9,6 @@ import time
 
 import httpx
 import pytest
-from labs import start_lab
 
 pytestmark = pytest.mark.lab
 
@@ -17,10 +16,8 @@ PROBLEM = "application/problem+json"
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("http"), "lights", http=True, things={"light-left", "light-right"})
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(lights):
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 @pytest.fixture(scope="module")

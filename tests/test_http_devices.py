@@ -10,7 +10,7 @@ from urllib.parse import quote
 
 import httpx
 import pytest
-from labs import free_port, interrupt, start_lab
+from labs import free_port, interrupt
 from probe import CSV, STL, poll, spawn_device
 from tdschema import assert_valid_td
 
@@ -18,13 +18,12 @@ pytestmark = pytest.mark.lab
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("probe"), "lights", http=True, things={"light-left"})
+def lab(lights):  # the session's lights lab, lent to this module (conftest.py)
+    lab = lights
     spawn_device(lab, "probe", "probe")
     listed, waited = poll(lambda: "probe" in [t["title"] for t in httpx.get(f"{lab.http}/things").json()], 10)
     assert waited is not None, "the adapter did not list the probe"
     yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import time
 
 import httpx
 import pytest
-from labs import free_port, interrupt, start_lab
+from labs import free_port, interrupt
 from probe import poll, spawn_device
 
 pytestmark = pytest.mark.lab
@@ -17,10 +17,8 @@ CONTRACT = 2.0  # seconds: the issue's join/leave contract
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("lifecycle"), "lights", http=True, things={"light-left"})
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(lights):
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 def listed(lab) -> list[str]:

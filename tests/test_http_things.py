@@ -6,7 +6,6 @@ from urllib.parse import quote
 
 import httpx
 import pytest
-from labs import start_lab
 from tdschema import assert_valid_td
 
 pytestmark = pytest.mark.lab
@@ -17,10 +16,8 @@ TD_CONTEXT_START = ["https://www.w3.org/2019/wot/td/v1", "https://www.w3.org/202
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("things"), "lights", http=True, things=set(THINGS))
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(lights):
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 def all_served_tds(base: str) -> list[dict]:

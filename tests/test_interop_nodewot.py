@@ -17,12 +17,9 @@ TOKEN = "n0de-wot-token"
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
+def lab(lights):
     npm.ensure_node_modules()
-    lab = start_lab(tmp_path_factory.mktemp("nodewot"), "lights", http=True,
-                    things={"light-left", "light-right", "tdgen"})  # `up` always starts the TD generator
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 @pytest.fixture()

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import trimesh
 from interop import npm
-from labs import mesh_client, start_robot_lab, stop_process
+from labs import mesh_client, stop_process
 from tdschema import assert_valid_td
 
 from devices.sim.robot_twin import workspace_from_csv
@@ -63,10 +63,8 @@ def wait_generated(lab, name: str, timeout: float = 120.0) -> dict:
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_robot_lab(tmp_path_factory.mktemp("robots"))
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(lights):
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 @pytest.fixture(scope="module")

@@ -25,7 +25,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 import trimesh
-from labs import start_robot_lab, stop_process
+from labs import stop_process
 from zoo import ROBOTS, SHARE, STRETCH_NESTED, ZOO
 
 from mesh.messages.relations import POINTS
@@ -211,10 +211,8 @@ def _robot_args(name: str) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_robot_lab(tmp_path_factory.mktemp("zoo"))
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(lights):
+    return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
 def _generated_td(http: httpx.Client, name: str, log: Path, proc, limit: float = 1200.0) -> dict:
