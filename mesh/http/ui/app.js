@@ -160,7 +160,9 @@ function propertyRow(card, name, p) {
     e.preventDefault();
     await call(out, button, ed, (body) => api(write.href, { method: write["htv:methodName"] || "PUT",
       headers: { "Content-Type": "application/json" }, body }));
-    if (out.dataset.ok === "true") readOne(card, name);  // not every property is observable: show what it is now
+    if (out.dataset.ok !== "true") return;
+    ed.reset();  // written: the input follows the Thing's value again
+    readOne(card, name);  // not every property is observable: show what it is now
   });
   if (structured) {
     row.append($("details", { class: "edit" }, $("summary", { text: "edit" }), form, out));
@@ -186,7 +188,6 @@ async function call(out, button, ed, send) {
   button.disabled = true;
   try {
     await show(out, await send(body));
-    if (ed && out.dataset.ok === "true") ed.reset();  // done: follow the Thing's state again
   } catch (err) { failed(out, err); } finally { button.disabled = false; }
 }
 
