@@ -9,8 +9,8 @@ error}`). The robot, subscribed to `generated` before it joined, fetches them an
 from them. A robot's `twinChanged` event (its surroundings changed) makes the service fetch the twin
 again and make the new scene's artefacts. When only the scene's bodies changed (a box put on the
 table or taken away), that is a live update (`tdgen.live`): the service keeps each robot's samples
-(up to LIVE_ROBOTS robots) and re-checks only those the change can touch, some 50 ms for 80,000
-UR10 samples instead of a generation; the result is the same, byte for byte. `<robot>.flags` (the
+(up to LIVE_ROBOTS robots, `tdgen.following`) and re-checks only those the change can touch instead of
+generating again; the result is the same, byte for byte. `<robot>.flags` (the
 new points.csv's sha256 and collision flags, 10 kB) lets the robot make the new points.csv from the
 one it holds instead of fetching it.
 
@@ -29,20 +29,18 @@ way: its temporary directory is left behind, never a half-written cache entry.
 """
 from __future__ import annotations
 
-import hashlib
 import logging
 import os
 import queue
 import threading
 import time
-from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, TypeVar
 
 import msgspec
 
+from mesh.backoff import pauses
 from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.server import ExposedThing
 from mesh.fabric.settings import MeshSettings
@@ -51,11 +49,12 @@ from mesh.messages.scene_description import TWIN_CHANGED, TWIN_REL, TwinDescript
 from mesh.wot import units
 from mesh.wot.problem import NotFound, Problem, TimedOut, Unavailable
 from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
-from tdgen.cache import ArtefactCache, cache_key
+from tdgen.artefacts import artefact_key, live_artefacts, make_artefacts, user_errors, write_entry
+from tdgen.cache import ArtefactCache
+from tdgen.following import Following, SceneFollower
 
 if TYPE_CHECKING:
     from tdgen.generate import GenerationResult
-    from tdgen.live import LiveSamples
     from tdgen.robot.calibration import Calibration
     from tdgen.robot.model import Robot
     from tdgen.robot.points_csv import Flags
@@ -73,25 +72,7 @@ ARTEFACTS = {  # file suffix -> content type; the generated file is named like t
     "scene.json": "application/json",
 }
 FLAGS = "flags"  # `<robot>.flags`: the digest of its points.csv (tdgen.robot.points_csv.Flags.digest)
-SMALL_RUN = 20_000  # samples up to which one process beats a pool (its start-up costs ~1 s per worker)
-LIVE_ROBOTS = 8          # robots whose samples stay in memory to follow their scenes (~100 B per sample)
 WRITE_AFTER_S = 1.0  # a live update's entry is written this long after it is served (the robot fetches meanwhile)
-LIVE_SAMPLES = 2_000_000  # a robot sampled more than this is generated again when its scene changes
-
-
-@dataclass
-class Following:
-    """A robot's samples kept to follow its scene (`tdgen.live`), with the twin they were made for."""
-
-    twin: TwinDescription
-    robot: Robot
-    calibration: Calibration | None
-    samples: LiveSamples
-
-    def follows(self, twin: TwinDescription) -> bool:
-        """Is `twin` this one with other surroundings only (what a live update can follow)?"""
-        return msgspec.structs.replace(self.twin, scene={}, version=0) == msgspec.structs.replace(twin, scene={},
-                                                                                                   version=0)
 
 
 def default_cache_dir() -> Path:
@@ -145,8 +126,8 @@ class TdgenService:
         (`tdgen.live`); False generates every scene from scratch."""
         self.session, self.settings, self.keys = session, settings, settings.keys
         self.live = live
-        self._following: OrderedDict[str, Following] = OrderedDict()  # generator thread only
         self.cache_dir = Path(cache_dir).expanduser() if cache_dir else default_cache_dir()
+        self.follower = SceneFollower(self.cache_dir, live)  # generator thread only
         self.cache = ArtefactCache(self.cache_dir)
         self.workers = workers
         self.client = MeshClient(session, settings)
@@ -282,15 +263,13 @@ class TdgenService:
         not be reachable by queries yet; a router taking thousands of sessions may answer late (a TD timed
         out while 10,000 devices joined); a robot that just started may not answer for seconds while it
         compiles its loops on a fresh machine (its twin file timed out, and it never got its TD)."""
-        delay = 0.05
-        for attempt in range(attempts):
+        for attempt, pause in zip(range(attempts), pauses(0.05, 1.0)):
             try:
                 return ask()
             except (Unavailable, TimedOut):
                 if attempt == attempts - 1:
                     raise
-                time.sleep(delay)
-                delay = min(delay * 2, 1.0)
+                time.sleep(pause)
         raise AssertionError("unreachable")
 
     # --- generation ------------------------------------------------------------------------------
@@ -312,8 +291,7 @@ class TdgenService:
                 self.generate(twin)
             except Exception:  # publishing on a closing session; the next request tries again
                 log.exception("%s: generation could not be reported", robot)
-        for following in self._following.values():  # stopped: their pybullet worlds go
-            following.samples.close()
+        self.follower.close()  # stopped: their pybullet worlds go
 
     def generate(self, twin: TwinDescription) -> RobotStatus:
         """Make the artefacts of `twin` available (cache, live update or generation), publish the status and
@@ -327,7 +305,7 @@ class TdgenService:
         if not cached:
             self._set_status(twin.robot, RobotStatus("generating", twin.version, key, progress=0.0))
             try:
-                following = self._live_update(twin)
+                following = self.follower.live_update(twin)
                 if following is not None:
                     unwritten = live_artefacts(twin, following.samples, following.robot, following.calibration)
                     self._progress_reporter(twin, key)(1.0)
@@ -335,7 +313,7 @@ class TdgenService:
                     make_artefacts(twin, self.cache, key, self.workers, self._progress_reporter(twin, key),
                                    keep=lambda *made: generated.append(made))
             except Exception as e:  # noqa: BLE001 - every failure is reported on the mesh
-                expected = isinstance(e, _user_errors())
+                expected = isinstance(e, user_errors())
                 error = str(e) if expected else f"{type(e).__name__}: {e}"
                 log.warning("%s: generation failed: %s", twin.robot, error, exc_info=not expected)
                 status = RobotStatus("failed", twin.version, key, round(time.perf_counter() - started, 3), False,
@@ -357,8 +335,20 @@ class TdgenService:
         self.thing.emit_event("generated", {"robot": twin.robot, "hash": key, "version": twin.version})
         if unwritten is not None:  # on disk once the robot has them (7.5 MB: 2-16 ms, not in its way)
             self._writing.submit(self._write_entry, twin.robot, key, unwritten)
-        self._follow(twin, key, following or (self._held(twin, *generated[0]) if generated else None))
+        kept = self.follower.follow(twin, key, following or (self.follower.held(twin, *generated[0]) if generated else None))
+        if kept is not None:
+            self._know_digest(twin.robot, key, kept)
         return status
+
+    def _know_digest(self, robot: str, key: str, kept: Following) -> None:
+        """The robot asks for its points.csv's digest next (`_digest`): from the samples in memory, not the file."""
+        with self._lock:
+            known = self._digests.get(robot, ("", b""))[0] == key
+        if not known:
+            digest = kept.samples.flags.digest()
+            with self._lock:
+                if self._ready.get(robot) == key:
+                    self._digests[robot] = (key, digest)
 
     def _write_entry(self, robot: str, key: str, files: dict[str, Artefact]) -> None:
         self._stopping.wait(WRITE_AFTER_S)
@@ -371,76 +361,6 @@ class TdgenService:
             if self._unwritten.get(robot, ("", {}))[0] == key:
                 del self._unwritten[robot]
 
-    def _held(self, twin: TwinDescription, robot: Robot, calibration: Calibration | None,
-              result: GenerationResult) -> Following | None:
-        """A generation's samples and points.csv as a live update starts from them, instead of reading the
-        file back and drawing the configurations again (some 50 ms, which the first scene change waited for)."""
-        from tdgen.live import LiveSamples
-
-        if not self.live or twin.samples > LIVE_SAMPLES or result.sampled is None or result.points is None:
-            return None
-        try:
-            samples = LiveSamples(robot, scene_of(twin), result.sampled, result.points, twin.collision_model)
-        except ValueError:  # not a points file one can re-flag: read back from the cache entry, as after a hit
-            return None
-        return Following(twin, robot, calibration, samples)
-
-    # --- live updates (tdgen.live) ---------------------------------------------------------------------
-    def _live_update(self, twin: TwinDescription) -> Following | None:
-        """The robot's samples in `twin`'s scene by a live update, if its previous twin differs in the scene only."""
-        from tdgen.live import NeedsGeneration
-
-        held = self._following.get(twin.robot)
-        if not self.live or held is None or not held.follows(twin):
-            return None
-        try:
-            samples, checked = held.samples.rescene(scene_of(twin))
-        except NeedsGeneration as e:
-            log.info("%s: generated again: %s", twin.robot, e)
-            return None
-        log.info("%s: scene followed live (%d configurations checked)", twin.robot, checked)
-        return Following(twin, held.robot, held.calibration, samples)
-
-    def _follow(self, twin: TwinDescription, key: str, following: Following | None) -> None:
-        """Keep the robot's samples for its next scene change: after a cache hit, those held moved to the
-        new scene (a box taken away: nothing to check), else read back from the cache entry; the least
-        recently changed robots beyond LIVE_ROBOTS are let go."""
-        from tdgen.live import LiveSamples
-
-        if not self.live or twin.samples > LIVE_SAMPLES:
-            return
-        if following is None:
-            held = self._following.get(twin.robot)
-            if held is not None and held.twin == twin:
-                return
-            following = self._live_update(twin)
-        if following is None:
-            try:
-                robot, calibration = load_robot(twin)
-                samples = LiveSamples.from_file(robot, scene_of(twin), twin.samples, twin.seed,
-                                                self.cache_dir / key / "points.csv", twin.collision_model)
-            except Exception:  # noqa: BLE001 - without it, the next change is generated from scratch
-                log.exception("%s: cannot keep its samples for live updates", twin.robot)
-                return
-            following = Following(twin, robot, calibration, samples)
-        else:
-            with self._lock:  # the robot asks for it next (`_digest`): from memory, not from the file
-                known = self._digests.get(twin.robot, ("", b""))[0] == key
-            if not known:
-                digest = following.samples.flags.digest()
-                with self._lock:
-                    if self._ready.get(twin.robot) == key:
-                        self._digests[twin.robot] = (key, digest)
-        before = self._following.get(twin.robot)
-        if before is None or before.samples.worlds is not following.samples.worlds:
-            if before is not None:
-                before.samples.close()
-            following.samples.prepare()  # new worlds: loaded now, not in the next change's update
-        self._following[twin.robot] = following
-        self._following.move_to_end(twin.robot)
-        while len(self._following) > LIVE_ROBOTS:
-            self._following.popitem(last=False)[1].samples.close()
-
     def _progress_reporter(self, twin: TwinDescription, key: str) -> Callable[[float], None]:
         """Publishes the generation's progress at most twice a second (and its end)."""
         last = [0.0]
@@ -452,116 +372,6 @@ class TdgenService:
                 self._set_status(twin.robot, RobotStatus("generating", twin.version, key,
                                                          progress=round(min(fraction, 1.0), 3)))
         return report
-
-
-def load_robot(twin: TwinDescription) -> tuple[Robot, Calibration | None]:
-    """The twin's robot (its URDF checked to be the robot's) and calibration."""
-    from tdgen.robot.calibration import fit_calibration
-    from tdgen.robot.model import Robot, RobotError, resolve_urdf
-
-    path = resolve_urdf(twin.urdf)
-    sha = hashlib.sha256(path.read_bytes()).hexdigest()
-    if sha != twin.urdf_sha256:
-        raise RobotError(f"{path}: its content differs from the robot's URDF (sha256 {sha[:12]} here, "
-                         f"{twin.urdf_sha256[:12]} there): run tdgen where the robot's URDF and meshes are")
-    robot = Robot.load(path, ee=twin.ee, base_link=twin.base_link, fixed=twin.fixed,
-                       packages={k: Path(v) for k, v in twin.packages.items()},
-                       allowed_collisions=twin.allowed_collisions)
-    calibration = None
-    if twin.calibration:
-        import numpy as np
-
-        rows = np.asarray(twin.calibration, dtype=float).reshape(-1, 6)
-        calibration = fit_calibration(rows[:, :3], rows[:, 3:])
-    return robot, calibration
-
-
-def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, workers: int | None = None,
-                   on_progress: Callable[[float], None] | None = None,
-                   keep: Callable[[Robot, Calibration | None, GenerationResult], None] | None = None) -> Path:
-    """Generate `twin`'s artefacts into the cache entry `key` (the one pipeline of `twinmesh tdgen`; a
-    live update's are `live_artefacts`, written by `write_entry`). `keep` is handed a generation's robot
-    and result (its samples and points.csv: the next live update's start)."""
-    from tdgen.generate import generate
-    from tdgen.robot_td import robot_id
-
-    robot, calibration = load_robot(twin)
-    workers = workers or (1 if twin.samples <= SMALL_RUN else None)
-
-    def fill(folder: Path) -> None:
-        result = generate(robot, scene_of(twin), twin.samples, twin.seed, folder, calibration=calibration,
-                          frame=twin.frame, name=twin.robot, thing_id=robot_id(twin.robot), workers=workers,
-                          on_progress=on_progress, collision_model=twin.collision_model)
-        (folder / "td.json").write_bytes(msgspec.json.encode(result.td))  # the TD the robot serves on the mesh
-        for warning in result.warnings:
-            log.warning("%s: %s", twin.robot, warning)
-        (folder / "twin.json").write_bytes(msgspec.json.encode(twin))
-        if keep is not None:
-            keep(robot, calibration, result)
-
-    return cache.make(key, fill)
-
-
-def live_artefacts(twin: TwinDescription, live: LiveSamples, robot: Robot,
-                   calibration: Calibration | None) -> dict[str, Artefact]:
-    """A live update's cache entry in memory, file name -> content (its points.csv re-flagged when first
-    written): the service serves it at once and writes it to the cache after."""
-    from tdgen.generate import Naming, write_artefacts
-    from tdgen.robot_td import robot_id
-
-    files: dict[str, Artefact] = {}
-    result = write_artefacts(robot, live.scene, live.samples, Path(twin.robot), Naming(twin.robot, robot_id(twin.robot)),
-                             twin.seed, calibration, twin.frame, points=live.flags, warnings=live.warnings(),
-                             write=lambda path, content: files.__setitem__(path.name, content))
-    files["td.json"] = msgspec.json.encode(result.td)  # the TD the robot serves on the mesh
-    files["twin.json"] = msgspec.json.encode(twin)
-    for warning in result.warnings:
-        log.warning("%s: %s", twin.robot, warning)
-    return files
-
-
-def write_entry(cache: ArtefactCache, key: str, files: dict[str, Artefact]) -> Path:
-    """`files` (`live_artefacts`) as the cache entry `key`."""
-    from tdgen.generate import write_file
-
-    def fill(folder: Path) -> None:
-        for name, content in files.items():
-            write_file(folder / name, content)
-
-    return cache.make(key, fill)
-
-
-def artefact_key(twin: TwinDescription) -> str:
-    """The cache key of `twin`'s artefacts, its URDF's meshes included when the URDF is here."""
-    return cache_key(twin, _urdf_here(twin))
-
-
-def _urdf_here(twin: TwinDescription) -> Path | None:
-    """The twin's URDF on this machine, if it is here (its meshes are then part of the cache key)."""
-    from tdgen.robot.model import RobotError, resolve_urdf
-
-    try:
-        return resolve_urdf(twin.urdf)
-    except RobotError:
-        return None
-
-
-def _user_errors() -> tuple[type[Exception], ...]:
-    """Failures a robot's twin can cause (a bad URDF, scene or calibration, no workspace volume)."""
-    from tdgen.robot.calibration import CalibrationError
-    from tdgen.robot.model import RobotError
-    from tdgen.robot.surroundings import SceneError
-    from tdgen.robot.workspace import WorkspaceError
-
-    return RobotError, SceneError, CalibrationError, WorkspaceError, msgspec.ValidationError
-
-
-def scene_of(twin: TwinDescription):
-    """The tdgen Surroundings of a twin: its bodies, with the robot standing at its base."""
-    from tdgen.robot.surroundings import RobotPlacement, Surroundings
-
-    placement = RobotPlacement.from_quaternion(tuple(twin.base.p), tuple(twin.base.q))  # type: ignore[arg-type]
-    return msgspec.convert({"name": "scene", **twin.scene, "robot": msgspec.to_builtins(placement)}, Surroundings)
 
 
 def run(settings: MeshSettings, stop: threading.Event, cache_dir: str | None = None,

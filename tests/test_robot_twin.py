@@ -217,7 +217,7 @@ from pathlib import Path
 import msgspec
 from mesh.messages.scene_description import TwinDescription
 from tdgen.cache import ArtefactCache
-from tdgen.service import artefact_key, make_artefacts
+from tdgen.artefacts import artefact_key, make_artefacts
 twin = msgspec.json.decode(Path(sys.argv[1]).read_bytes(), type=TwinDescription)
 cache = ArtefactCache(Path(sys.argv[2]))
 key = artefact_key(twin)

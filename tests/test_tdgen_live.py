@@ -9,14 +9,15 @@ import numpy as np
 import pytest
 
 from mesh.messages.scene_description import Pose, TwinDescription
+from tdgen.artefacts import artefact_key, live_artefacts, load_robot, make_artefacts, scene_of, write_entry
 from tdgen.cache import ArtefactCache
+from tdgen.following import Following
 from tdgen.generate import collision_warnings
 from tdgen.live import LiveSamples, NeedsGeneration
 from tdgen.robot import points_csv
 from tdgen.robot.model import Robot, resolve_urdf
 from tdgen.robot.surroundings import BoxBody, CylinderBody, RobotPlacement, load_scene
 from tdgen.sampling import sample_workspace
-from tdgen.service import Following, artefact_key, live_artefacts, load_robot, make_artefacts, scene_of, write_entry
 
 SAMPLES = 3000
 # on the table beside the UR10 (table-and-wall: the robot's base on the table top at z = 0.625 m, a wall at y = 0.6)

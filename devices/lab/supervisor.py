@@ -21,6 +21,7 @@ from typing import Any, Callable
 
 import msgspec
 
+from mesh.backoff import pause_after
 from mesh.fabric.settings import MeshSettings
 from mesh.process import StopEvent, install_stop_handlers, set_title
 
@@ -142,7 +143,7 @@ class Supervisor:
                     log.error("process %s exited (code %s), its %d%s crash within %.0f s; stopping the lab",
                               name, code, len(crashes), _ordinal(len(crashes)), CRASH_WINDOW)
                     break
-                pause = min(RESTART_BACKOFF[0] * 2 ** (len(crashes) - 1), RESTART_BACKOFF[1])
+                pause = pause_after(len(crashes), *RESTART_BACKOFF)
                 log.error("process %s exited (code %s); starting it again in %.1f s (crash %d of %d allowed "
                           "within %.0f s)", name, code, pause, len(crashes), MAX_CRASHES - 1, CRASH_WINDOW)
                 due[name] = now + pause

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
+from mesh.backoff import pause_after
 from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.server import ExposedThing
 from mesh.fabric.settings import MeshSettings
@@ -54,7 +55,8 @@ log = logging.getLogger(__name__)
 TDGEN = "tdgen"               # the service's Thing name (tdgen.service.THING)
 FLAGS = "flags"               # its `<robot>.flags` file (tdgen.service.FLAGS)
 STATE_RATE = 20.0             # joint-state publications per wall second while moving, at most
-ADOPT_RETRIES_S = (1.0, 2.0, 4.0, 8.0, 15.0, 30.0)  # waits before fetching a generated TD again (60 s in all)
+ADOPT_RETRIES = 6          # fetches of a generated TD after the first one fails...
+ADOPT_PAUSES_S = (1.0, 30.0)  # ...after pauses doubling from 1 s, at most 30 s (61 s in all)
 CARTESIAN = ("getCartesianposition", "moveToCartesianPosition")
 
 
@@ -231,8 +233,8 @@ class RobotThing:
             workspace, flags = self._workspace_of(points, made)
             td = generated_td(files["td.json"], self.twin, version)
         except Problem as e:
-            if attempt < len(ADOPT_RETRIES_S):
-                delay = ADOPT_RETRIES_S[attempt]
+            if attempt < ADOPT_RETRIES:
+                delay = pause_after(attempt + 1, *ADOPT_PAUSES_S)
                 log.info("%s: fetching the generated artefacts (%s) failed: %s; again in %g s", self.name, hash, e,
                          delay)
                 retry = threading.Timer(delay, self._adopt_again, (hash, version, attempt + 1))

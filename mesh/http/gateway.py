@@ -32,6 +32,7 @@ import anyio
 import anyio.to_thread
 import msgspec
 
+from mesh.backoff import pauses
 from mesh.fabric.directory import Directory
 from mesh.fabric.drain import Drained
 from mesh.fabric.mesh_client import MeshClient, Reply
@@ -267,7 +268,8 @@ class Registry:
         """A fresh peer's queryables may take a moment to reach us, and a mesh with thousands of Things
         starting may answer late: retry with backoff (up to every 30 s) as long as the Thing is alive,
         saying once when it takes long."""
-        delay, attempts = 0.05, 0
+        attempts = 0
+        delays = pauses(0.05, 2.0)
         while True:
             try:
                 reply = await self.call(self.client.request, self.keys.td(entry.name), None, None, entry.name)
@@ -281,8 +283,9 @@ class Registry:
                 return
             if entry.generation != generation or not entry.alive:
                 return
-            await asyncio.sleep(delay)
-            delay = min(delay * 2, 2.0 if attempts < self.fetch_attempts else 30.0)
+            await asyncio.sleep(next(delays))
+            if attempts == self.fetch_attempts:
+                delays = pauses(2.0, 30.0)
 
     def _set_td(self, entry: ThingEntry, payload: bytes) -> None:
         known = entry.td is not None and entry.source is not None
