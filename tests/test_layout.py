@@ -26,9 +26,9 @@ def _our_modules(path: Path) -> list[Path]:
 
 
 def test_all_code_lives_in_the_three_packages():
-    """Every tracked .py outside tests/ and docs/ is under mesh/, tdgen/ or devices/, each a package."""
+    """Every tracked .py outside tests/, docs/ and examples/ is under mesh/, tdgen/ or devices/, each a package."""
     strays = [str(p.relative_to(REPO)) for p in _code_files()
-              if p.relative_to(REPO).parts[0] not in (*PACKAGES, "tests", "docs")]
+              if p.relative_to(REPO).parts[0] not in (*PACKAGES, "tests", "docs", "examples")]
     assert strays == [], f"code outside mesh/, tdgen/, devices/: {strays}"
     for package in PACKAGES:
         assert (REPO / package / "__init__.py").is_file(), f"{package}/ is not an import package"
