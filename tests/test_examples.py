@@ -178,6 +178,23 @@ def test_the_thermostat_td_runs_as_a_virtual_thing(lights):
         lights.extra.remove(process)
 
 
+# --- examples/scenes, offline ----------------------------------------------------------------------
+
+
+def test_the_workbench_scene_gives_a_td_offline_and_check_judges_targets_on_it(tmp_path):
+    """The README's offline line for the scene: `twinmesh tdgen` with it, then `twinmesh check`, one verdict
+    line each (few samples and the exact model here: no compile on first use)."""
+    out = tmp_path / "ur10"
+    made = _run(["twinmesh", "tdgen", "ur10.urdf", "--scene", str(EXAMPLES / "scenes" / "workbench.json"),
+                 "--samples", "3000", "--collision-model", "exact", "--out", str(out)], timeout=900)
+    assert made.returncode == 0, made.stderr
+    scene = json.loads((out / "scene.json").read_text())
+    assert {"bench", "crate", "bin", "wall"} <= {body.get("name") for body in scene["bodies"]}
+    behind = _run(["twinmesh", "check", str(out), "-800", "0", "200"])  # through the wall behind the robot
+    assert behind.returncode == 1 and behind.stderr == ""
+    assert behind.stdout.startswith("REFUSED: ") and len(behind.stdout.splitlines()) == 1
+
+
 # --- examples/robots and examples/scenes ----------------------------------------------------------
 
 
