@@ -28,7 +28,7 @@ def replay(path: str, port: int, grpc_port: int | None, bind: str, desktop: bool
         if desktop:
             sys.exit(subprocess.run(desktop_command(rrd), env=rerun_env()).returncode)
         web = WebReplay(rrd, bind, port, grpc_port or port + 1)
-        proc = web.start()
+        proc, viewer = web.start()
     except (ReplayError, RepairError) as e:
         raise usage_exit(str(e)) from None
     click.echo(f"replaying {rrd} at {web.url}  (Ctrl-C to stop)")
@@ -37,6 +37,7 @@ def replay(path: str, port: int, grpc_port: int | None, bind: str, desktop: bool
     except KeyboardInterrupt:
         pass
     finally:
+        viewer.close()
         if proc.poll() is None:
             proc.terminate()
             try:

@@ -1,13 +1,15 @@
 """Replaying a recording: Rerun's own viewer on a `.rrd` file, in a browser or on the desktop.
 
 A headless host has no display for Rerun's desktop viewer, so the default is its web viewer: the
-`rerun` command of rerun-sdk serves the file over gRPC and the viewer's page over HTTP, both on
-127.0.0.1 unless asked otherwise, and a browser opens the URL `web_url` prints. The recording holds
-its blueprint, so the replay opens on the same tabs and views as the live view did.
+`rerun` command of rerun-sdk serves the file over gRPC, this process serves the viewer's page
+(`mesh.recorder.web_viewer`, the same page as the live view's), both on 127.0.0.1 unless asked
+otherwise, and a browser opens the URL `url` gives. The recording holds its blueprint, so the
+replay opens on the same tabs and views as the live view did.
 
-Rerun's viewer collects usage data unless told not to; every `rerun` this module starts runs with
-`NO_USAGE_DATA` in its environment (`CI` set: Rerun sends nothing from a CI run, and checks no other
-switch besides its own config file), so nothing twinmesh starts sends any.
+Rerun's viewer collects usage data unless told not to. Every `rerun` this module starts runs with
+`NO_USAGE_DATA` in its environment (`CI` set: Rerun sends nothing from a CI run; it checks no other
+switch besides its per-user config file), and the web page may connect to nothing but this host's
+ports, so nothing twinmesh starts sends any.
 """
 from __future__ import annotations
 
@@ -17,9 +19,9 @@ import subprocess
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from urllib.parse import quote
 
 from mesh.recorder.repair import rerun_cli
+from mesh.recorder.web_viewer import ViewerServer, viewer_url
 
 NO_USAGE_DATA = {"CI": "1"}  # Rerun's analytics are off in a CI run (its `rerun analytics disable` is per user)
 MAGIC = b"RRF2"  # the first bytes of every .rrd file
@@ -55,9 +57,7 @@ def check_recording(path: str | Path) -> Path:
 
 def web_url(host: str, port: int, grpc_port: int) -> str:
     """What a browser opens: the web viewer at host:port, pointed at the file's gRPC stream."""
-    shown = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
-    stream = f"rerun+http://{shown}:{grpc_port}/proxy"
-    return f"http://{shown}:{port}/?url={quote(stream, safe='')}"
+    return viewer_url("127.0.0.1" if host in ("0.0.0.0", "::", "") else host, port, grpc_port)
 
 
 def port_free(host: str, port: int) -> bool:
@@ -84,27 +84,27 @@ class WebReplay:
 
     def command(self) -> list[str]:
         memory = max(MIN_SERVER_MEMORY, 3 * self.path.stat().st_size) >> 20
-        return [rerun_cli(), "--serve-web", "--bind", self.host, "--port", str(self.grpc_port),
-                "--web-viewer-port", str(self.port), "--server-memory-limit", f"{memory}MiB", str(self.path)]
+        return [rerun_cli(), "--serve-grpc", "--bind", self.host, "--port", str(self.grpc_port),
+                "--server-memory-limit", f"{memory}MiB", str(self.path)]
 
     def check_ports(self) -> None:
         for port, what in ((self.port, "--port"), (self.grpc_port, "--grpc-port")):
             if not port_free(self.host, port):
                 raise ReplayError(f"port {port} on {self.host} is taken ({what}); choose another")
 
-    def start(self) -> subprocess.Popen:
-        """Start serving; returns once the page answers (rerun's own output is kept for an error)."""
+    def start(self) -> tuple[subprocess.Popen, ViewerServer]:
+        """Start serving; returns once the stream and the page answer (rerun's output is kept for an error)."""
         self.check_ports()
         log = tempfile.TemporaryFile()
         proc = subprocess.Popen(self.command(), stdout=log, stderr=subprocess.STDOUT, env=rerun_env())
-        if not _wait_port(self.host, self.port, proc, READY_TIMEOUT):
+        if not _wait_port(self.host, self.grpc_port, proc, READY_TIMEOUT):
             if proc.poll() is None:
                 proc.kill()
             proc.wait()
             log.seek(0)
             said = log.read().decode(errors="replace").strip().splitlines()
             raise ReplayError(f"rerun did not serve {self.path}" + (f": {said[-1][-300:]}" if said else ""))
-        return proc
+        return proc, ViewerServer((self.host, self.port), self.grpc_port)
 
 
 def desktop_command(path: Path) -> list[str]:

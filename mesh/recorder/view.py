@@ -3,8 +3,8 @@
 `twinmesh up` runs it as the `view` process (unless `--no-view`): the same Recorder that writes
 `.rrd` files (the room, the robots from their URDFs, cubes, belts, lights, pan-tilt heads, the UR10's
 workspace, obstacles, planned paths, plots of properties) logs into a RecordingStream served over
-Rerun's gRPC proxy, and rerun-sdk serves its own web viewer (its files come with the package: no
-internet) pointed at that stream.
+Rerun's gRPC proxy, and `mesh.recorder.web_viewer` serves Rerun's web viewer (its files come with
+rerun-sdk: no internet; the page may reach nothing but this host) pointed at that stream.
 
 A browser that opens the URL late must be current at once, however long the lab has run: the
 server keeps the static data (the room, the robots' models, the blueprint) and the last `MEMORY` of
@@ -17,7 +17,6 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from urllib.parse import quote
 
 from mesh.fabric.settings import MeshSettings
 
@@ -26,8 +25,9 @@ MEMORY = "64MiB"  # the history the gRPC proxy keeps for browsers that connect l
 
 def view_url(address: tuple[str, int], grpc_port: int) -> str:
     """What a browser opens: the web viewer at `address`, told where the live stream is."""
-    host, port = address
-    return f"http://{host}:{port}/?url={quote(grpc_url(host, grpc_port), safe='')}"
+    from mesh.recorder.web_viewer import viewer_url
+
+    return viewer_url(address[0], address[1], grpc_port)
 
 
 def grpc_url(host: str, grpc_port: int) -> str:
@@ -41,12 +41,14 @@ def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] 
 
     from mesh.fabric.session import open_session
     from mesh.recorder.logger import Recorder
+    from mesh.recorder.web_viewer import ViewerServer
 
     rec = rr.RecordingStream("twinmesh")
     rr.serve_grpc(grpc_port=grpc_port, recording=rec, server_memory_limit=MEMORY, newest_first=True)
-    rr.serve_web_viewer(web_port=address[1], open_browser=False, connect_to=grpc_url(address[0], grpc_port))
+    viewer = ViewerServer(address, grpc_port)
     rec.send_recording_name(f"twinmesh {settings.prefix} live {time.strftime('%Y-%m-%d %H:%M:%S')}")
     with open_session(settings, service=True) as session, Recorder(session, settings, rec) as recorder:
         alive = recorder.start()
         print(f"3D view at {view_url(address, grpc_port)} ({len(alive)} things alive)", file=sys.stderr, flush=True)
         stop.wait()
+    viewer.close()
