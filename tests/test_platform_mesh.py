@@ -13,7 +13,7 @@ import msgspec
 import numpy as np
 import psutil
 import pytest
-from labs import PLATFORM_THINGS, mesh_client, start_lab
+from labs import mesh_client
 
 pytestmark = pytest.mark.lab
 
@@ -21,11 +21,8 @@ PROBLEM = "application/problem+json"
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("platform-mesh"), "iot-platform", http=True, things=PLATFORM_THINGS,
-                    extra_args=("--speed", "max"))
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(platform):
+    return platform  # the session's iot-platform lab, lent to this module (conftest.py)
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from labs import PLATFORM_THINGS, mesh_client, start_lab
+from labs import PLATFORM_THINGS, mesh_client
 from tdschema import REFERENCE_TDS, assert_valid_td
 
 from mesh.messages.relations import MODEL, SCENE
@@ -145,11 +145,8 @@ def test_the_declared_location_range_holds_every_position_the_uarm_can_take():
 
 # --- served by a running lab ----------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("platform-tds"), "iot-platform", http=True, things=THINGS,
-                    extra_args=("--speed", "max"))
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(platform):
+    return platform  # the session's iot-platform lab, lent to this module (conftest.py)
 
 
 @pytest.mark.lab

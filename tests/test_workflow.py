@@ -11,7 +11,7 @@ import subprocess
 import numpy as np
 import pytest
 from interop import npm
-from labs import PLATFORM_THINGS, mesh_client, start_lab
+from labs import mesh_client
 
 pytestmark = pytest.mark.lab
 
@@ -20,11 +20,8 @@ RGB = {"cube-red": [219, 31, 26], "cube-green": [31, 168, 56], "cube-blue": [31,
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    lab = start_lab(tmp_path_factory.mktemp("workflow"), "iot-platform", http=True, things=PLATFORM_THINGS,
-                    extra_args=("--speed", "max"))
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(platform):
+    return platform  # the session's iot-platform lab, lent to this module (conftest.py)
 
 
 @pytest.fixture(scope="module")
