@@ -132,7 +132,10 @@ function render(td) {
       ...quick.map(([n, a], i) => actionForm(card, n, a, answers[i]))), ...answers);
   }
   for (const [n, a] of actions.filter(([, x]) => x.input)) section.append(actionBox(card, n, a));
-  if (events.length) section.append($("div", { class: "events" }, ...events.map(([n, e]) => eventRow(card, n, e))));
+  if (events.length) {
+    section.append($("div", { class: "events" }, $("span", { class: "kind", text: "Events" }),
+      ...events.map(([n, e]) => eventRow(card, n, e))));
+  }
   card.polled = props.filter(([, p]) => !p.observable && !p.writeOnly && formFor(p, "readproperty")).map(([n]) => n);
   return card;
 }
@@ -285,7 +288,7 @@ async function poll() {
 }
 
 // --- live updates -----------------------------------------------------------------------------------
-async function follow(url, onEvent, onOpen = () => {}) {
+async function follow(url, onEvent, onOpen = () => {}, onLost = () => {}) {
   for (;;) {
     try {
       const r = await api(url, { headers: { Accept: "text/event-stream" } });
@@ -312,6 +315,7 @@ async function follow(url, onEvent, onOpen = () => {}) {
     } catch (err) {
       if (err instanceof NeedsCredentials) return;
     }
+    onLost();
     await new Promise((done) => setTimeout(done, 2000));  // the adapter restarts: again, and read the state anew
     things.forEach(readAll);
   }
@@ -417,7 +421,7 @@ async function directory(kind, data) {
     return;
   }
   place(await api(`/${title}`).then((x) => x.json()));
-  status(`${things.size} Things`);
+  status(`${things.size} Things · live`);
 }
 
 document.getElementById("filter").addEventListener("input", applyFilter);
@@ -429,6 +433,10 @@ document.getElementById("filter").addEventListener("keydown", (e) => {
     e.target.value = "";
     applyFilter();
   }
+});
+document.getElementById("find").addEventListener("click", () => {
+  window.scrollTo({ top: 0 });
+  document.getElementById("filter").focus();
 });
 document.addEventListener("keydown", (e) => {  // "/" finds a Thing, as in most consoles
   if (e.key === "/" && !/^(INPUT|TEXTAREA|SELECT)$/.test(document.activeElement?.tagName || "")) {
@@ -459,7 +467,9 @@ async function start() {
     follow("/_lab/stream", (name, data) => {
       if (name.startsWith("/directory/events/")) directory(name.split("/").pop(), data);
       else update(name, data);
-    }, () => { loaded.then(() => { document.body.dataset.ready = "true"; }); });  // live, and showing the state
+    }, () => {  // live, and showing the state
+      loaded.then(() => { document.body.dataset.ready = "true"; status(`${things.size} Things · live`); });
+    }, () => status(`${things.size} Things · reconnecting…`));
   } catch (err) {
     if (!(err instanceof NeedsCredentials)) status(`Cannot load the Things: ${err.message || err}`);
   }

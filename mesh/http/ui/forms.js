@@ -101,7 +101,7 @@ export function field(schema = {}, opts = {}) {
       step: schema.multipleOf || (kind === "integer" ? 1 : "any"), placeholder: bounds(schema) || "number" });
     const self = { el: labelled(schema, opts, input),
       get: () => (input.value === "" ? undefined : Number(input.value)),
-      set: (v) => { input.value = typeof v === "number" ? String(kind === "integer" ? v : Number(fmt(v))) : ""; } };
+      set: (v) => { input.value = typeof v === "number" ? String(kind === "integer" ? v : Number(v.toPrecision(6))) : ""; } };
     self.seed = seed(self);
     self.set(startValue(schema, opts.required));
     return self;
