@@ -44,7 +44,7 @@ def tdgen(settings: MeshSettings, stop: threading.Event, **kwargs: Any) -> None:
 
 
 def lights(settings: MeshSettings, stop: threading.Event, **kwargs: Any) -> None:
-    from devices.things.lights import run
+    from devices.lab.lights_process import run
 
     run(settings, stop, **kwargs)
 
@@ -56,7 +56,7 @@ def robot(settings: MeshSettings, stop: threading.Event, **kwargs: Any) -> None:
 
 
 def fleet(settings: MeshSettings, stop: threading.Event, **kwargs: Any) -> None:
-    from devices.things.fleet import run
+    from devices.lab.fleet_process import run
 
     run(settings, stop, **kwargs)
 

@@ -11,6 +11,15 @@ import threading
 from contextlib import ExitStack
 from typing import TYPE_CHECKING, Sequence
 
+from devices.lab.serving import guard_robot, serve_platform
+from devices.sim.layouts.lab import build_lab
+from devices.things.binding import serve
+from devices.things.lights import bind_light, light_td
+from devices.things.pan_tilt import bind_pan_tilt, pan_tilt_td
+from devices.things.robot_thing import RobotThing
+from devices.things.world_thing import WorldThing
+from mesh.fabric.server import ExposedThing
+from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.scene_description import DEFAULT_SAMPLES
 
@@ -29,16 +38,6 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
     `samples`: random configurations the UR10's workspace is sampled with (fewer start faster).
     `real`: the platform devices that guard their real devices, reached with `access` (`devices.things.guard`).
     """
-    from devices.lab.serving import guard_robot, serve_platform
-    from devices.sim.layouts.lab import build_lab
-    from devices.things.binding import serve
-    from devices.things.lights import bind_light, light_td
-    from devices.things.pan_tilt import bind_pan_tilt, pan_tilt_td
-    from devices.things.robot_thing import RobotThing
-    from devices.things.world_thing import WorldThing
-    from mesh.fabric.server import ExposedThing
-    from mesh.fabric.session import open_session
-
     lab = build_lab(speed=speed)
     with ExitStack() as stack:
         stack.callback(lab.close)  # runs last if anything below fails

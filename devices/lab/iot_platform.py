@@ -13,6 +13,10 @@ import threading
 from contextlib import ExitStack
 from typing import TYPE_CHECKING, Sequence
 
+from devices.lab.serving import serve_platform
+from devices.sim.layouts.platform_layout import build_platform
+from devices.things.world_thing import WorldThing
+from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
 
 if TYPE_CHECKING:
@@ -26,11 +30,6 @@ def run(settings: MeshSettings, stop: threading.Event, speed: float | None = 1.0
         real: Sequence[RealDevice] = (), access: Access | None = None) -> None:
     """Serve the iot-platform's devices and its world until `stop` is set (speed None: as fast as possible);
     the devices in `real` guard their real devices (`devices.things.guard`), reached with `access`."""
-    from devices.lab.serving import serve_platform
-    from devices.sim.layouts.platform_layout import build_platform
-    from devices.things.world_thing import WorldThing
-    from mesh.fabric.session import open_session
-
     platform = build_platform(speed=speed)
     with ExitStack() as stack:
         stack.callback(platform.close)  # runs last if anything below fails

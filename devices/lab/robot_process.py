@@ -8,8 +8,16 @@ from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from typing import TYPE_CHECKING
 
+from devices.lab.serving import guard_robot
+from devices.sim.pybullet_world import World
+from devices.sim.robot_twin import WORKSPACE_WAIT, Base, RobotTwin
 from devices.things.robot_setup import RobotSetup
+from devices.things.robot_thing import RobotThing
+from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
+from tdgen.robot.calibration import load_calibration
+from tdgen.robot.surroundings import build_into, default_scene, load_scene
+from tdgen.robot_td import slug
 
 if TYPE_CHECKING:
     from devices.things.guard import RealDevice
@@ -22,15 +30,6 @@ def run(settings: MeshSettings, stop: threading.Event, setup: RobotSetup, real: 
         access: Access | None = None, announce: Callable[[str], None] | None = None) -> None:
     """Process entry: the robot of `setup` until `stop` is set; `real`: the real robot it guards
     (`devices.things.guard`), reached with `access`; `announce` says how the URDF was read (default: the log)."""
-    from devices.lab.serving import guard_robot
-    from devices.sim.pybullet_world import World
-    from devices.sim.robot_twin import WORKSPACE_WAIT, Base, RobotTwin
-    from devices.things.robot_thing import RobotThing
-    from mesh.fabric.session import open_session
-    from tdgen.robot.calibration import load_calibration
-    from tdgen.robot.surroundings import build_into, default_scene, load_scene
-    from tdgen.robot_td import slug
-
     robot = setup.arm.load(setup.urdf)
     for line in [robot.describe_chain(), *robot.notes()]:
         (announce or log.info)(f"{robot.name}: {line}")

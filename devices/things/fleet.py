@@ -13,15 +13,12 @@ from __future__ import annotations
 
 import json
 import logging
-import threading
-from contextlib import ExitStack
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
-from devices.things.binding import Cleanup, nothing_to_undo, serve
+from devices.things.binding import Cleanup, nothing_to_undo
 from mesh.fabric.server import ExposedThing
-from mesh.fabric.settings import MeshSettings
 from mesh.wot import units
 from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
 
@@ -158,24 +155,3 @@ def bind_climate(thing: ExposedThing, device: FleetDevice, ticker) -> Cleanup:
     thing.on_read("temperature", lambda: climate.temperature).on_read("humidity", lambda: climate.humidity)
     thing.on_read("interval", lambda: climate.interval).on_write("interval", write_interval)
     return nothing_to_undo
-
-
-def run(settings: MeshSettings, stop: threading.Event, start: int, end: int, first: int = 1) -> None:
-    """Process entry: serve the fleet's devices `start`..`end - 1` (stations from `first`) until `stop` is set."""
-    from devices.sim.stations import Ticker
-    from mesh.fabric.session import open_session
-
-    ticker = Ticker()
-    stations: dict[int, Any] = {}
-    with ExitStack() as stack:
-        for index in range(start, end):
-            if stop.is_set():
-                return
-            device = FleetDevice(index, first)
-            session = stack.enter_context(open_session(settings, thing=device.name))
-            thing = ExposedThing(session, device_td(device), device.name, settings.keys)
-            serve(stack, thing, bind_fleet_device(thing, device, ticker, stations))
-        stack.callback(ticker.stop)  # first on the way out: no reading is published to a closed Thing
-        ticker.start()
-        log.info("fleet: devices %s..%s on the mesh", FleetDevice(start, first).name, FleetDevice(end - 1, first).name)
-        stop.wait()

@@ -5,10 +5,9 @@ switchOn / switchOff / setColor actions and a `stateChanged` event.
 """
 from __future__ import annotations
 
-import threading
 from typing import Callable
 
-from devices.things.binding import Cleanup, nothing_to_undo, serve
+from devices.things.binding import Cleanup, nothing_to_undo
 from mesh.fabric.server import ExposedThing
 from mesh.wot import units
 from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
@@ -73,17 +72,3 @@ def bind_light(thing: ExposedThing, show: Callable[[bool, list[float]], None] | 
     thing.on_action("switchOff", lambda _: set_state(False))
     thing.on_action("setColor", set_color)
     return nothing_to_undo
-
-
-def run(settings, stop: threading.Event, names: tuple[str, ...] = LIGHTS) -> None:
-    """Process entry: serve the lights, each on its own session, until `stop` is set."""
-    from contextlib import ExitStack
-
-    from mesh.fabric.session import open_session
-
-    with ExitStack() as stack:
-        for name in names:
-            session = stack.enter_context(open_session(settings, thing=name))
-            thing = ExposedThing(session, light_td(name), name, settings.keys)
-            serve(stack, thing, bind_light(thing))
-        stop.wait()
