@@ -16,6 +16,7 @@ import msgspec
 import numpy as np
 import pytest
 from labs import REPO, start_lab, stop_process
+from rerun_view import shared_frames
 
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.relations import MODEL, POINTS, WORKSPACE
@@ -274,6 +275,59 @@ def test_a_world_that_takes_a_robot_over_clears_the_things_model(tmp_path):
 
     path = _drawn(tmp_path, draw)
     assert latest(path, "/robots/ur10/model", "Clear:is_recursive") == [True]
+    assert shared_frames(path) == {}  # its own model's frames are not the world's: Rerun takes both
+
+
+OWN_SCENE = {"name": "table-and-wall", "bodies": [
+    {"type": "urdf", "name": "table", "urdf": "pybullet_data:table/table.urdf"},
+    {"type": "box", "name": "wall", "size": [2.0, 0.1, 1.6], "position": [0.0, 0.6, 0.8], "rgba": [0.8, 0.3, 0.2, 1.0]},
+    {"type": "cylinder", "name": "bin", "radius": 0.1, "length": 0.3, "position": [0.5, -0.3, 0.775],
+     "rpy": [0.0, 0.0, 90.0]}]}
+
+
+def test_a_robot_simulated_apart_is_drawn_in_its_own_world_with_its_scene(tmp_path):
+    """A robot Thing that is not one of the lab world's robots (joined with its own scene) stands in its
+    own world: its own root and frame, its scene's bodies around it, its workspace in its base frame,
+    its own tab; nothing of it in the lab's room."""
+    lab = SceneDescription("iot-lab", robots=[RobotModel("ur10", "ur10.urdf", Pose((2.3, 0.0, 0.75)))])
+    twin = msgspec.structs.replace(TWIN, robot="arm", base=Pose((0.0, 0.0, 0.625)), scene=OWN_SCENE)
+
+    def draw(rec):
+        world = SceneDrawer(rec)
+        robots = RobotDrawer(rec, world)
+        assert world.draw_scene(SceneFiles(lab, {"ur10.urdf": UR10_URDF}), time.time(), 0) == []
+        assert robots.draw_robot(RobotFiles("arm", twin, UR10_URDF)) == []
+        assert robots.world_changed() == []
+        robots.draw_workspace(DrawnWorkspace.from_files("arm", POINTS_1, HULL_1, twin))
+        assert robots.own_worlds() == {"arm": twin.base} and robots.bases() == {}
+
+    path = _drawn(tmp_path, draw)
+    assert latest(path, "/robots/arm/model/base", "Transform3D:parent_frame") == ["tf#/robots/arm"]
+    assert latest(path, "/robots/arm/model/base", "Transform3D:child_frame") == ["robots/arm/base_link"]
+    assert latest(path, "/robots/arm/workspace/hull", "CoordinateFrame:frame") == ["robots/arm/base_link"]
+    assert latest(path, "/robots/arm/scene/wall", "Boxes3D:half_sizes") == [pytest.approx([1.0, 0.05, 0.8])]
+    assert latest(path, "/robots/arm/scene/bin", "Cylinders3D:radii") == [pytest.approx(0.1)]
+    assert latest(path, "/robots/arm/scene/table/base", "Transform3D:parent_frame") == ["tf#/robots/arm"]
+    assert shared_frames(path) == {}
+
+
+def test_a_robot_simulated_apart_gets_its_own_tab_outside_the_lab_view():
+    import rerun.blueprint as rrb
+
+    lab = SceneDescription("iot-lab", robots=[RobotModel("ur10", "ur10.urdf", Pose((2.3, 0.0, 0.75)))])
+    blueprint = lab_blueprint(lab, ["ur10"], {"ur10": BASE}, {"arm": Pose((0.0, 0.0, 0.625))})
+    tabs = blueprint.root_container.contents[0]
+    assert isinstance(tabs, rrb.Tabs)
+    room, workspaces, own = tabs.contents
+    assert (room.name, workspaces.name, own.name) == ("iot-lab", "workspaces", "arm (own world)")
+    assert str(own.origin) == "/robots/arm"
+    assert not any("/robots/arm" in str(c) for c in _queries(room)), "the robot apart is in the room"
+    assert any("/robots/ur10" in str(c) for c in _queries(room)), "the lab's UR10 Thing is not in the room"
+
+
+def _queries(view) -> list:
+    contents = view.contents
+    return list(getattr(contents, "query", contents) or [])
 
 
 def test_a_bad_urdf_is_reported_and_the_joints_still_recorded(tmp_path):

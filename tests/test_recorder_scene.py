@@ -282,3 +282,36 @@ def test_an_obstacle_exists_from_when_it_was_added_until_it_was_removed(tmp_path
     assert static_column(path, "/world/bodies/table", "Boxes3D:half_sizes")
     assert not static_column(path, "/world/bodies/obstacle-1", "Boxes3D:half_sizes")
     assert set(sim_times(path, "/world/bodies/obstacle-1")) == {2.0, 5.0}  # drawn at 2 s, cleared at 5 s
+
+
+def test_a_lamp_shade_shows_its_lights_colour_the_moment_the_state_changes(tmp_path):
+    """A body that shows a light (Body.shows) takes the light's colour from the world's state while it
+    is on and its own while off; each change is logged with the poses that carry it, not when the
+    scene is next redrawn."""
+    import rerun as rr
+
+    path = tmp_path / "lamp.rrd"
+    rec = rr.RecordingStream("lamp")
+    rec.save(str(path))
+    shade = Body("light-left-shade", "box", (0.12, 0.12, 0.06), Pose((0.0, 1.6, 1.08)), (0.35, 0.35, 0.35),
+                 shows="light-left")
+    drawer = SceneDrawer(rec)
+    rec.set_time("seq", sequence=0)
+    assert drawer.draw_scene(SceneFiles(SceneDescription("lab", bodies=[shade]), {}), time.time(), 0) == []
+    states = [{"on": False, "color": [1.0, 1.0, 1.0]}, {"on": True, "color": [1.0, 1.0, 1.0]},
+              {"on": True, "color": [1.0, 0.0, 0.0]}, {"on": True, "color": [1.0, 0.0, 0.0]},
+              {"on": False, "color": [1.0, 0.0, 0.0]}]
+    for i, state in enumerate(states, start=1):
+        rec.set_time("seq", sequence=i)
+        for entry in drawer.add_poses(Poses(time=0.1 * i, states={"light-left": state}), time.time(), i):
+            rec.log(entry.path, entry.archetype, static=entry.static)
+    drawer.flush()
+    rec.disconnect()
+    colours = [rgb(c[0]) for c in read_column(path, "/world/bodies/light-left-shade", "Boxes3D:colors")]
+    assert colours == [(89, 89, 89), (255, 255, 255), (255, 0, 0), (89, 89, 89)]  # off, white, red, off
+    assert not static_column(path, "/world/bodies/light-left-shade", "Boxes3D:colors")  # would shadow them
+    assert static_column(path, "/world/bodies/light-left-shade", "Boxes3D:half_sizes")
+
+
+def rgb(packed: int) -> tuple[int, int, int]:
+    return packed >> 24, (packed >> 16) & 0xFF, (packed >> 8) & 0xFF

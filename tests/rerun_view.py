@@ -1,0 +1,100 @@
+"""Rerun's view in tests: a recording's transform frames, and the web viewer in a headless Chromium.
+
+`frame_owners` reads a recording back through rerun-sdk's own reader and says which entities log
+each named transform frame (Rerun refuses a frame that two entities log statically, or two
+temporally: "Two entities define the same child frame"). `ViewerPage` opens Rerun's web viewer with
+`browser.chromium` (shared with the control page's tests) and keeps what the page says on its
+console and which hosts it asks, so a test can find Rerun's errors and any request that leaves the
+machine; `pixels` reads the page as an RGB array.
+"""
+from __future__ import annotations
+
+import io
+import re
+from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import numpy as np
+
+VIEWPORT = {"width": 1280, "height": 800}
+_RERUN_LINE = re.compile(r"\b(ERROR|WARN)\s+(re_\w+|egui\w*|eframe)(::\w+)*:")
+# Rerun's warnings about this machine, not about the data: a software rasteriser (no GPU here), the web
+# backend lacking a window command, the welcome screen's examples that the page may not fetch (our policy)
+ENVIRONMENT = ("Software rasterizer", "not implemented in web backend", "Failed to load examples")
+LOCAL = {"127.0.0.1", "localhost", "::1", "[::1]"}
+
+
+def frame_owners(path: Path) -> dict[tuple[str, bool], set[str]]:
+    """(frame name, logged statically) -> the entities that log a transform to that frame."""
+    from rerun.chunk import RrdReader
+
+    owners: dict[tuple[str, bool], set[str]] = defaultdict(set)
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        if "Transform3D:child_frame" not in batch.schema.names:
+            continue
+        for frames in batch.column("Transform3D:child_frame").to_pylist():
+            for frame in frames or []:
+                owners[(frame, chunk.is_static)].add(chunk.entity_path)
+    return dict(owners)
+
+
+def shared_frames(path: Path) -> dict[tuple[str, bool], set[str]]:
+    """The frames more than one entity logs (the same way, static or over time): Rerun's errors."""
+    return {frame: entities for frame, entities in frame_owners(path).items() if len(entities) > 1}
+
+
+class ViewerPage:
+    """A Playwright page on Rerun's web viewer, with its console lines and requested hosts kept."""
+
+    def __init__(self, page, url: str):
+        self.page = page
+        self.console: list[tuple[str, str]] = []
+        self.hosts: set[str] = set()
+        page.on("console", lambda m: self.console.append((m.type, m.text)))
+        page.on("request", lambda r: self.hosts.add(urlsplit(r.url).hostname or r.url))
+        page.goto(url, timeout=120_000)
+
+    def rerun_problems(self) -> list[str]:
+        """Rerun's own errors and warnings on the console, less those about this machine (ENVIRONMENT)."""
+        lines = [text for kind, text in self.console if kind in ("error", "warning") and _RERUN_LINE.search(text)]
+        return [line for line in lines if not any(e in line for e in ENVIRONMENT)]
+
+    def foreign_hosts(self) -> set[str]:
+        """Hosts other than this machine that the page asked for anything."""
+        return {h for h in self.hosts if h not in LOCAL}
+
+    def pixels(self) -> np.ndarray:
+        """The page as it is drawn now, (height, width, 3) uint8."""
+        from PIL import Image
+
+        png = self.page.screenshot(timeout=180_000)
+        return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+
+@contextmanager
+def viewer_page(url: str) -> Iterator[ViewerPage]:
+    """Rerun's web viewer at `url` in a headless Chromium (skipped where no Chromium can be had)."""
+    from browser import chromium
+
+    with chromium() as browser:
+        page = browser.new_page(viewport=VIEWPORT)  # type: ignore[attr-defined]
+        try:
+            yield ViewerPage(page, url)
+        finally:
+            page.close()
+
+
+def colour_share(pixels: np.ndarray, rgb: tuple[int, int, int], tolerance: float = 0.12) -> float:
+    """The share of pixels whose hue and saturation are those of `rgb` (any brightness: the view shades
+    its faces), e.g. a magenta lamp under the view's light."""
+    px = pixels.astype(float) / 255.0
+    target = np.asarray(rgb, dtype=float) / 255.0
+    brightness = px.max(axis=2, keepdims=True)
+    lit = brightness[..., 0] > 0.2
+    normalised = px / np.maximum(brightness, 1e-6)
+    close = np.abs(normalised - target / target.max()).max(axis=2) < tolerance
+    return float((close & lit).mean())
