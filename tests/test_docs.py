@@ -13,7 +13,8 @@ How each command is run, as a user following the page would run it:
   user would press Ctrl-C; they must not fail before that;
 - everything else must exit 0 (curl with `--fail-with-body`, so any 4xx/5xx fails it), a `python` block too.
 Commands run in a shell in a scratch directory, with `twinmesh` from this interpreter's environment and
-`TWINMESH_CACHE` and `TWINMESH_SECRETS` in that directory (robot workspaces are generated afresh).
+`TWINMESH_CACHE` and `XDG_DATA_HOME` (a secure lab's secrets) in that directory (robot workspaces are generated
+afresh).
 """
 from __future__ import annotations
 
@@ -104,7 +105,7 @@ class Walk:
     def env(self) -> dict[str, str]:
         bin_dir = str(Path(sys.executable).parent)
         return {**os.environ, "PATH": bin_dir + os.pathsep + os.environ.get("PATH", ""),
-                "TWINMESH_CACHE": str(self.cwd / "cache"), "TWINMESH_SECRETS": str(self.cwd / "secrets"),
+                "TWINMESH_CACHE": str(self.cwd / "cache"), "XDG_DATA_HOME": str(self.cwd / "data"),
                 "PYTHONUNBUFFERED": "1", "TWINMESH_CONNECT": f"tcp/127.0.0.1:{self.zenoh_port}"}
 
     def rewrite(self, command: str) -> str:
