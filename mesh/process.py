@@ -122,6 +122,17 @@ class _QuietImports(importlib.abc.MetaPathFinder):
 SHOW_NATIVE = "TWINMESH_SHOW_NATIVE_OUTPUT"  # "1" (`twinmesh -v`, inherited by every child): let pybullet speak
 
 
+def run_quietly(payload: bytes) -> None:
+    """A spawned child's start: pybullet quiet first, then `fn(*args)` from `payload` (pickled `(fn, args)`).
+    Pickled as bytes, the arguments are unpickled only now: unpickled by spawn itself, before any code of
+    ours runs, they would import pybullet loudly (a Robot, a scene, a real device's guard)."""
+    import pickle
+
+    quiet_pybullet_import()
+    fn, args = pickle.loads(payload)
+    fn(*args)
+
+
 def quiet_pybullet_import() -> None:
     """pybullet prints its build time to stderr when it loads: not when twinmesh loads it (unless the
     environment says SHOW_NATIVE=1, as `twinmesh -v` does for itself and its children)."""

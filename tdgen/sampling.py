@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import pickle
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -27,6 +28,8 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
+from mesh.messages.scene_description import CollisionModel
+from mesh.process import run_quietly
 from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.link_frames import LinkFrames
 from tdgen.robot.model import Robot
@@ -78,7 +81,7 @@ def default_workers() -> int:
 
 def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None = 0, workers: int | None = None,
                      progress: bool = False, on_progress: Callable[[float], None] | None = None,
-                     collision_model: str = "fast") -> Samples:
+                     collision_model: CollisionModel = "fast") -> Samples:
     """Draw n configurations and find their end-effector positions and collisions.
 
     `collision_model` "fast" (the default) or "exact" (pybullet for every configuration). Exact checks
@@ -214,7 +217,7 @@ def _exact(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarr
             done(len(chunk))
     else:
         ctx = multiprocessing.get_context("spawn")
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(robot, scene)) as pool:
+        with ctx.Pool(workers, initializer=run_quietly, initargs=(pickle.dumps((_init_worker, (robot, scene))),)) as pool:
             for chunk, result in zip(chunks, pool.imap(_check_chunk, chunks)):
                 flags.append(result)
                 done(len(chunk))

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
+import pickle
 import signal
 import threading
 import time
@@ -23,7 +24,7 @@ import msgspec
 
 from mesh.backoff import pause_after
 from mesh.fabric.settings import MeshSettings
-from mesh.process import StopEvent, install_stop_handlers, set_title
+from mesh.process import StopEvent, install_stop_handlers, run_quietly, set_title
 
 log = logging.getLogger(__name__)
 
@@ -113,7 +114,8 @@ class Supervisor:
     def _spawn(self, spec: ProcessSpec) -> None:
         payload = msgspec.json.encode(self.settings)
         level = logging.getLogger().getEffectiveLevel()
-        p = self._ctx.Process(target=_child, args=(spec, payload, level, os.getpid()), name=spec.name, daemon=False)
+        args = (spec, payload, level, os.getpid())
+        p = self._ctx.Process(target=run_quietly, args=(pickle.dumps((_child, args)),), name=spec.name, daemon=False)
         p.start()
         self.procs[spec.name] = p
 

@@ -12,7 +12,6 @@ token; a process's devices share one ticker thread and the process's query and a
 from __future__ import annotations
 
 import json
-import logging
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
@@ -21,8 +20,6 @@ from devices.things.binding import Cleanup, nothing_to_undo
 from mesh.fabric.server import ExposedThing
 from mesh.wot import units
 from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
-
-log = logging.getLogger(__name__)
 
 KINDS = ("belt", "infrared", "color", "light", "climate")
 DEFAULT_FLEET = 100
