@@ -10,6 +10,7 @@ from concurrent.futures import ThreadPoolExecutor
 import httpx
 import pytest
 from labs import mesh_client
+from waiting import always, eventually
 
 from mesh.wot.invocation import Invocations
 from mesh.wot.problem import BadInput, Conflict, NotFound
@@ -26,13 +27,9 @@ def lab(lights):  # the session's lights lab, lent to this module (conftest.py)
     lab = lights
     lab.spawn("robot", "ur10.urdf", "--name", "ur10", "--samples", "3000", "--speed", "0.25",
               log=lab.tmp / "ur10.log")
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:  # the generated TD (Cartesian bounds) is not needed: joint moves
-        if httpx.get(f"{lab.http}/ur10", timeout=5).status_code == 200:
-            break
-        time.sleep(0.1)
-    else:
-        raise AssertionError((lab.tmp / "ur10.log").read_text()[-3000:])
+    # the generated TD (Cartesian bounds) is not needed: joint moves
+    eventually(lambda: httpx.get(f"{lab.http}/ur10", timeout=5).status_code == 200, timeout=120,
+               what=f"the ur10 served\n{(lab.tmp / 'ur10.log')}")
     yield lab
 
 
@@ -53,13 +50,10 @@ def joints(http) -> dict[str, float]:
 
 
 def until_ended(http, location: str, timeout: float = 120.0) -> dict:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+    def ended() -> dict | None:
         status = http.get(location).json()
-        if status["status"] not in ("pending", "running"):
-            return status
-        time.sleep(0.1)
-    raise AssertionError(f"{location} still {status} after {timeout} s")
+        return status if status["status"] not in ("pending", "running") else None
+    return eventually(ended, timeout=timeout, what=f"{location} ended")
 
 
 def at(http, pan: float) -> None:
@@ -87,10 +81,10 @@ def test_an_async_move_answers_201_is_running_when_queried_and_completed_after(h
     location = r.headers["location"]
     assert status["href"] == location and location.endswith(f"/ur10/actions/moveToJointPosition/{status['id']}")
     assert status["status"] in ("pending", "running") and status["timeRequested"].endswith("Z")
-    time.sleep(0.5)
+    eventually(lambda: joints(http)["shoulder_pan_joint"] > 0, what="the UR10 on its way")
     running = http.get(location).json()
     assert running["status"] == "running" and "timeStarted" in running
-    assert 0 < joints(http)["shoulder_pan_joint"] < 60  # on its way
+    assert joints(http)["shoulder_pan_joint"] < 60  # on its way
     done = until_ended(http, location)
     assert done["status"] == "completed", done
     out = done["output"]  # the answer a synchronous move gives
@@ -107,17 +101,15 @@ def test_a_cancelled_move_stops_short_of_the_target_and_says_cancelled(http):
     r = http.post("/ur10/actions/moveToJointPosition", json=goal(120), headers={"Prefer": "respond-async"})
     assert r.status_code == 201 and r.headers["preference-applied"] == "respond-async", r.text
     location = r.headers["location"]
-    deadline = time.monotonic() + 30
-    while joints(http)["shoulder_pan_joint"] < 20 and time.monotonic() < deadline:
-        time.sleep(0.05)
+    eventually(lambda: joints(http)["shoulder_pan_joint"] >= 20, timeout=30, what="20 degrees on its way")
     cancelled = http.delete(location)
     assert cancelled.status_code == 204, cancelled.text
     status = http.get(location).json()
     assert status["status"] == "cancelled" and status["error"]["status"] == 409, status
     stopped = status["error"]["extra"]["joints"]["shoulder_pan_joint"]
     assert 20 <= stopped < 110, status  # short of the target
-    time.sleep(0.5)
-    assert joints(http)["shoulder_pan_joint"] == pytest.approx(stopped, abs=1e-6)  # and it stays there
+    always(lambda: joints(http)["shoulder_pan_joint"] == pytest.approx(stopped, abs=1e-6), 0.5,
+           what="the UR10 stays where it stopped")
     again = http.delete(location)
     assert again.status_code == 409 and again.headers["content-type"].startswith(PROBLEM)
     assert again.json()["reason"] == "already-ended"
@@ -149,7 +141,7 @@ def test_over_zenoh_a_move_is_started_queried_and_cancelled_and_wildcards_only_r
     with mesh_client(lab.endpoint) as c:
         started = c.invoke_async("ur10", "moveToJointPosition", goal(90))
         assert started.status in ("pending", "running")
-        time.sleep(0.6)
+        eventually(lambda: joints(http)["shoulder_pan_joint"] > 0, what="the UR10 on its way")
         assert c.query_action("ur10", "moveToJointPosition", started.id).status == "running"
         # cancelling acts: a query on a wildcard key may read the calls but not cancel
         replies = list(c.session.get(f"wot/*/actions/moveToJointPosition?id={started.id};cancel", timeout=5))
@@ -171,14 +163,11 @@ def test_finished_invocations_are_kept_for_a_bounded_time_and_count():
     with ThreadPoolExecutor(2) as pool:
         kept = Invocations(pool, keep=3, keep_for=0.5)
         ids = [kept.start("blink", lambda i=i: i).id for i in range(5)]
-        deadline = time.monotonic() + 5
-        while any(s.status != "completed" for s in kept.all()) and time.monotonic() < deadline:
-            time.sleep(0.01)
+        eventually(lambda: all(s.status == "completed" for s in kept.all()), timeout=5)
         assert [s.output for s in kept.all()] == [2, 3, 4]  # the oldest two went first
         with pytest.raises(NotFound):
             kept.get(ids[0])
-        time.sleep(0.6)
-        assert kept.all() == []
+        eventually(lambda: kept.all() == [], timeout=5, what="finished invocations forgotten after keep_for")
         with pytest.raises(NotFound):
             kept.get(ids[4])
 
@@ -221,7 +210,8 @@ def test_consume_starts_queries_waits_for_and_cancels_async_moves(lab, http, bin
             out = move.wait(timeout=60)
             assert move.status.status == "completed" and out["path"]["points"][-1][0] == pytest.approx(30, abs=1e-6)
             move = ur10.invoke_action_async("moveToJointPosition", goal(150))
-            time.sleep(0.8)
+            eventually(lambda: ur10.read_property("getJointposition")["shoulder_pan_joint"] > 32,
+                       what="the second move under way")
             assert move.cancel().status == "cancelled"
             with pytest.raises(Conflict):
                 move.wait()

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import json
 import subprocess
-import time
 from pathlib import Path
 
 import httpx
 import pytest
 from interop import npm
+from waiting import eventually
 
 pytestmark = [pytest.mark.lab, pytest.mark.interop, pytest.mark.timeout(600)]
 
@@ -133,14 +133,23 @@ def test_a_bad_input_is_400_and_never_reaches_the_remote(lab, bridge, real_lab):
     assert not any(q["method"] == "POST" for q in real_lab.requests())  # the bridge's polls are GETs
 
 
+def toggle_until_seen(real_lab, sensor: str, follower: subprocess.Popen) -> None:
+    """Toggle the remote sensor's objectPresence until `follower` (a `twinmesh subscribe --count 1`) has
+    seen an event and exited: no guess at when its subscription is declared or the bridge's feed is back."""
+    values = iter([True, False] * 1000)
+
+    def seen() -> bool:
+        httpx.put(f"{real_lab.base}/{sensor}/properties/objectPresence", json=next(values),
+                  auth=(CREDENTIALS["username"], CREDENTIALS["password"]), timeout=10).raise_for_status()
+        return follower.poll() is not None
+    eventually(seen, timeout=60, interval=0.2, what=f"an event of {sensor} through the bridge")
+
+
 def test_events_and_changes_of_the_remote_reach_the_mesh(lab, bridge, real_lab):
     follower = subprocess.Popen(lab.cli_args("subscribe", "ir-1", "detectedObject", "--count", "1"),
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        time.sleep(2)  # the subscription is declared
-        for value in (True, False, True):
-            httpx.put(f"{real_lab.base}/InfraredSensor1/properties/objectPresence", json=value,
-                      auth=(CREDENTIALS["username"], CREDENTIALS["password"]), timeout=10).raise_for_status()
+        toggle_until_seen(real_lab, "InfraredSensor1", follower)  # from before its subscription is declared
         out, err = follower.communicate(timeout=60)
     finally:
         follower.kill()
@@ -179,13 +188,7 @@ def test_a_remote_that_stops_answering_is_503_until_it_is_back(lab, bridge, real
     follower = subprocess.Popen(lab.cli_args("subscribe", "ir-2", "detectedObject", "--count", "1"),
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 60
-        value = True
-        while follower.poll() is None and time.monotonic() < deadline:
-            httpx.put(f"{real_lab.base}/InfraredSensor2/properties/objectPresence", json=value,
-                      auth=(CREDENTIALS["username"], CREDENTIALS["password"]), timeout=10).raise_for_status()
-            value = not value
-            time.sleep(1)
+        toggle_until_seen(real_lab, "InfraredSensor2", follower)
         out, err = follower.communicate(timeout=10)
     finally:
         follower.kill()

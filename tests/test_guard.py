@@ -249,6 +249,7 @@ def test_a_robot_twin_guards_a_real_arm(ur10_lab, real_ur10):
 
 def test_the_recorder_has_the_real_device_beside_its_twin_on_one_timeline(lab, tmp_path):
     from labs import stop_process
+    from waiting import eventually
 
     from recordings import scalars, wait_for_line
 
@@ -256,7 +257,9 @@ def test_the_recorder_has_the_real_device_beside_its_twin_on_one_timeline(lab, t
     recorder = lab.spawn("record", str(path), log=log)
     wait_for_line(log, "recording to", recorder)
     assert go_to(lab, 170, -60, 75).status_code == 204
-    time.sleep(3)  # the real uArm's location is read every second (it offers no http observation)
+    # the real uArm's location is read every second (it offers no http observation): until it is published
+    eventually(lambda: location(lab, "uarm-real")[0] == round(170 + OFFSET[0]), timeout=30,
+               what="the real uArm's new location on the mesh")
     assert stop_process(recorder), log.read_text()
     twin_x = scalars(path, "/things/uarm/properties/location/x")
     real_x = scalars(path, "/things/uarm-real/properties/location/x")

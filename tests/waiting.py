@@ -35,3 +35,15 @@ def eventually(condition: Callable[[], T], timeout: float = 60.0, interval: floa
             raise AssertionError(f"not true after {timeout:.0f} s: {what or getattr(condition, '__name__', condition)}")
         time.sleep(delay)
         delay = min(delay * 1.5, 0.5)
+
+
+def always(condition: Callable[[], object], duration: float, interval: float = 0.05, what: str = "") -> None:
+    """Assert that `condition` holds on every check for `duration` seconds: a negative observation
+    ("it stays where it stopped", "nothing is served"), the window being the claim itself. Use it
+    only where no event can say "it will not happen"; it never stands in for waiting on something."""
+    deadline = time.monotonic() + duration
+    while True:
+        assert condition(), f"stopped holding: {what or getattr(condition, '__name__', condition)}"
+        if time.monotonic() >= deadline:
+            return
+        time.sleep(interval)
