@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from labs import free_port
 from tdschema import assert_valid_td
+from waiting import eventually, subscribed
 
 from devices.sim.pan_tilt import NOTHING, PanTilt
 from devices.sim.pybullet_world import World, static_box
@@ -262,12 +263,11 @@ def test_on_the_mesh_move_to_answers_when_there_with_the_final_position_publishe
         thing = ExposedThing(stack.enter_context(open_session(mesh)), pan_tilt_td("pan-tilt-1"), "pan-tilt-1", mesh.keys)
         serve(stack, thing, bind_pan_tilt(thing, unit))
         client = MeshClient(stack.enter_context(open_session(mesh)), mesh)
-        deadline = time.monotonic() + 10
-        while not client.is_alive("pan-tilt-1") and time.monotonic() < deadline:
-            time.sleep(0.05)
+        eventually(lambda: client.is_alive("pan-tilt-1"), timeout=10, what="pan-tilt-1 alive")
         client.observe("pan-tilt-1", "panPosition", positions.put)
         client.subscribe("pan-tilt-1", "detectColor", colours.put)
-        time.sleep(0.3)  # the subscriptions reach the Thing's session
+        subscribed(thing.session, mesh.keys.property("pan-tilt-1", "panPosition"))  # as the Thing's session sees it
+        subscribed(thing.session, mesh.keys.event("pan-tilt-1", "detectColor"))
 
         assert client.invoke("pan-tilt-1", "moveTo", {"panAngle": RED_AT, "tiltAngle": 0}) is None
         assert client.read("pan-tilt-1", "panPosition") == RED_AT

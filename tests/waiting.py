@@ -5,6 +5,7 @@ is a last resort that names what was awaited.
 """
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from typing import TypeVar
@@ -47,3 +48,18 @@ def always(condition: Callable[[], object], duration: float, interval: float = 0
         if time.monotonic() >= deadline:
             return
         time.sleep(interval)
+
+
+def subscribed(session, key: str, timeout: float = 60.0) -> None:
+    """Return once a subscriber matching `key` is declared where `session` can see it: a Zenoh matching
+    listener on a publisher of `key` (declare it on the publishing side's session: that is the view
+    that decides whether a publication reaches the subscriber). For "the subscription is declared"."""
+    publisher = session.declare_publisher(key)
+    matched = threading.Event()
+    listener = publisher.declare_matching_listener(lambda status: status.matching and matched.set())
+    try:
+        if not (publisher.matching_status or matched.wait(timeout)):
+            raise AssertionError(f"no subscriber matching {key} declared within {timeout:.0f} s")
+    finally:
+        listener.undeclare()
+        publisher.undeclare()
