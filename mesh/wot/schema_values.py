@@ -230,6 +230,8 @@ class _Builder:
             except _Impossible as e:
                 last = e
                 continue
+            if not excluded and _built_right(candidate, flat):
+                return candidate
             if all(_locally_valid(candidate, s) for s in flat) and not any(_locally_valid(candidate, n)
                                                                           for n in excluded):
                 return candidate
@@ -313,7 +315,7 @@ class _Builder:
         if kind == "string":
             return self._string(flat)
         if kind == "array":
-            return self._array(flat, depth)
+            return self._array(flat, nots, depth)
         return self._object(flat, nots, depth)
 
     def _kinds(self, flat: list[dict[str, Any]], nots: list[Any]) -> list[str]:
@@ -321,9 +323,13 @@ class _Builder:
         for s in flat:
             if "type" in s:
                 allowed &= _expand(s["type"])
-        for n in nots:  # `not: {type: ...}` alone excludes its types outright
-            if isinstance(n, dict) and "type" in n and not set(n) - {"type", "title", "description", "$comment"}:
-                allowed -= _expand(n["type"])
+        for n in nots:
+            if not isinstance(n, dict):
+                continue
+            if "type" in n and not set(n) - {"type", "title", "description", "$comment"}:
+                allowed -= _expand(n["type"])  # `not: {type: ...}` alone excludes its types outright
+            elif not any(k in n for k in ("type", "enum", "const", *COMBINATORS)) and _hinted(n):
+                allowed &= _expand(sorted(_hinted(n)))  # any other type matches it: only these can break it
         if not allowed:
             raise _Impossible("no JSON type is left by its type keywords")
         hinted = {kind for s in flat for kind in _hinted(s)} & allowed
@@ -354,7 +360,10 @@ class _Builder:
             raise _Impossible(f"no multiple of {', '.join(map(str, multiples))} within {lo}..{hi} that validators accept")
         if integer:
             return self.rng.randint(int(lo), int(hi))
-        return round(self.rng.uniform(lo, hi), 3) if hi - lo > 0.01 else lo
+        if hi - lo <= 0.01:
+            return lo
+        v = self.rng.uniform(lo, hi)
+        return round(v, 3) if lo <= round(v, 3) <= hi else v
 
     def _string(self, flat: list[dict[str, Any]]) -> str:
         lo = max([int(s["minLength"]) for s in flat if _is_num(s.get("minLength"))] or [0])
@@ -387,7 +396,56 @@ class _Builder:
         return s
 
     # --- arrays ----------------------------------------------------------------------------------------
-    def _array(self, flat: list[dict[str, Any]], depth: int) -> list[Any]:
+    def _array(self, flat: list[dict[str, Any]], nots: list[Any], depth: int) -> list[Any]:
+        out, holder, lo, hi = self._items(flat, depth)
+        for n in nots:  # what must not match, broken on purpose where it still does
+            if isinstance(n, dict) and _locally_valid(out, n):
+                self._break_array(out, n, flat, holder, lo, hi, depth)
+        return out
+
+    def _break_array(self, out: list[Any], n: dict[str, Any], flat: list[dict[str, Any]], holder: int, lo: int,
+                     hi: int, depth: int) -> None:
+        """Make `out` stop matching `n`: an item `n`'s `items` refuses, more items than its `maxItems`,
+        fewer than its `minItems`, a repeated item against its `uniqueItems`."""
+        unique = any(s.get("uniqueItems") is True for s in flat)
+        moves: list[str] = []
+        if isinstance(n.get("items"), dict) and n["items"] is not True and n["items"] != {}:
+            moves.append("refuse")
+        if _is_num(n.get("maxItems")) and n["maxItems"] < hi:
+            moves.append("grow")
+        if _is_num(n.get("minItems")) and n["minItems"] > lo:
+            moves.append("shrink")
+        if n.get("uniqueItems") is True and not unique and out:
+            moves.append("repeat")
+        if ("enum" in n or "const" in n) and len(out) < hi:  # one item more makes it another value
+            moves.append("more")
+        self.rng.shuffle(moves)
+        for move in moves:
+            try:
+                if move == "refuse":
+                    i = self.rng.randrange(len(out) + 1) if len(out) < hi else self.rng.randrange(len(out))
+                    if i == holder:
+                        continue
+                    v = self._value([x for s in flat for x in _item_schemas(s, i)], [n["items"]], depth + 1)
+                    out[i:i + 1] = [v]
+                elif move == "grow":
+                    while len(out) <= n["maxItems"] and len(out) < hi:
+                        out.append(self._value([x for s in flat for x in _item_schemas(s, len(out))], [], depth + 1))
+                elif move == "shrink":
+                    if holder > 0:  # the item `contains` was built for goes first
+                        out.insert(0, out.pop(holder))
+                        holder = 0
+                    del out[max(lo, holder + 1):]
+                elif move == "more":
+                    out.append(self._value([x for s in flat for x in _item_schemas(s, len(out))], [], depth + 1))
+                elif move == "repeat" and len(out) < hi and holder != len(out):
+                    out.append(copy.deepcopy(out[-1]))
+            except _Impossible:
+                continue
+            if not _locally_valid(out, n):
+                return
+
+    def _items(self, flat: list[dict[str, Any]], depth: int) -> tuple[list[Any], int, int, int]:
         lo = max([int(s["minItems"]) for s in flat if _is_num(s.get("minItems"))] or [0])
         hi = min([int(s["maxItems"]) for s in flat if _is_num(s.get("maxItems"))] or [max(lo, 3) + 3])
         contains = [s["contains"] for s in flat if "contains" in s]
@@ -404,21 +462,21 @@ class _Builder:
         out: list[Any] = []
         for i in range(n):
             schemas = [schema for s in flat for schema in _item_schemas(s, i)] + (contains if i == holder else [])
-            for _ in range(4):
-                try:
-                    v = self._value(schemas, [], depth + 1)
+            for attempt in range(4):
+                try:  # after a repeat, the items so far are values it must not be
+                    v = self._value(schemas, [{"enum": list(out)}] if attempt and out else [], depth + 1)
                 except _Impossible:
                     if i >= lo and i != holder:
-                        return out
+                        return out, holder, lo, hi
                     raise
                 if not unique or all(_json(v) != _json(w) for w in out):
                     break
             else:
                 if i >= lo and i != holder:
-                    return out
+                    return out, holder, lo, hi
                 raise _Impossible("cannot build enough unique items")
             out.append(v)
-        return out
+        return out, holder, lo, hi
 
     # --- objects ---------------------------------------------------------------------------------------
     def _object(self, flat: list[dict[str, Any]], nots: list[Any], depth: int) -> dict[str, Any]:
@@ -459,8 +517,11 @@ class _Builder:
             except _Impossible:
                 if name in shape.required:
                     raise
+        wanted = shape.min_props
+        if not shape.declared and not shape.required and self.rng.random() < 0.5:
+            wanted = max(wanted, min(shape.max_props, len(out) + self.rng.randint(1, 2)))  # a free-form object
         extra = 0
-        while len(out) < shape.min_props and extra < 4 * shape.min_props + 8:
+        while len(out) < wanted and extra < 4 * wanted + 8:
             extra += 1
             free = self._free_name(shape, out)
             if free is None:
@@ -469,6 +530,11 @@ class _Builder:
                 out[free] = self._value(shape.schemas(free), [], depth + 1)
             except _Impossible:
                 continue
+        for name in list(out):  # the names a name added for minProperties depends on
+            for d in shape.dependencies.get(name) or []:
+                for other in d if isinstance(d, list) else []:
+                    if isinstance(other, str) and other not in out and shape.allowed(other):
+                        out[other] = self._value(shape.schemas(other), [], depth + 1)
         if len(out) < shape.min_props:
             raise _Impossible(f"cannot find {shape.min_props} properties it allows (minProperties)")
         for n in nots:  # what must not match, broken on purpose where it still does
@@ -476,49 +542,91 @@ class _Builder:
                 self._break(out, n, shape, depth)
         return out
 
-    def _free_name(self, shape: "_Shape", taken: dict[str, Any]) -> str | None:
-        """A property name the object allows that it does not have yet."""
+    def _free_name(self, shape: "_Shape", taken: dict[str, Any], avoid: Any = None) -> str | None:
+        """A property name the object allows that it does not have yet (and `avoid` does not refuse)."""
+        def fits(name: str) -> bool:
+            return name not in taken and shape.allowed(name) and not (avoid and avoid(name))
+
         for name in shape.declared:
-            if name not in taken and shape.allowed(name):
+            if fits(name):
                 return name
         for pattern in shape.patterns:
             try:
                 name = self._regex.xeger(pattern)
             except Exception:
                 continue
-            if name not in taken and shape.allowed(name):
+            if fits(name):
                 return name
-        if shape.names:
-            try:
-                name = self._value([{"type": "string"}, *shape.names], [], 1)
-            except _Impossible:
-                return None
-            return name if name not in taken and shape.allowed(name) else None
-        name = f"p{len(taken) + 1}{self.rng.choice(string.ascii_lowercase)}"
-        return name if shape.allowed(name) else None
+        for _ in range(4):
+            if shape.names:
+                try:
+                    name = self._value([{"type": "string"}, *shape.names], [], 1)
+                except _Impossible:
+                    return None
+            else:
+                name = f"p{len(taken) + 1}{self.rng.choice(string.ascii_lowercase)}"
+            if fits(name):
+                return name
+        return None
 
     def _break(self, out: dict[str, Any], n: dict[str, Any], shape: "_Shape", depth: int) -> None:
         """Make `out` stop matching `n` while it keeps to its own shape: leave out a name `n` requires,
-        or give a property a value `n` refuses."""
-        moves: list[Any] = []
+        give a property a value `n` refuses, add a property or a name `n` does not allow."""
+        moves: list[tuple[Any, ...]] = []
         for name in n.get("required") or []:
             if name in out and name not in shape.required:
                 moves.append(("drop", name))
         for name, sub in (n.get("properties") or {}).items():
             if shape.allowed(name) and sub is not True and sub != {}:
                 moves.append(("refuse", name, sub))
+        for pattern, sub in (n.get("patternProperties") or {}).items():
+            if sub is not True and sub != {}:
+                moves.append(("pattern", pattern, sub))
+        extra = n.get("additionalProperties", True)
+        if extra is not True and extra != {}:
+            moves.append(("extra", extra))
+        if _is_num(n.get("maxProperties")):
+            moves.append(("grow", n["maxProperties"]))
+        if n.get("propertyNames", True) not in (True, {}):
+            moves.append(("name", n["propertyNames"]))
+        if "enum" in n or "const" in n:  # one property more makes it another value
+            moves.append(("grow", len(out)))
         self.rng.shuffle(moves)
         for move in moves:
-            if move[0] == "drop":
-                if len(out) - 1 >= shape.min_props:
-                    del out[move[1]]
-            else:
-                try:
-                    out[move[1]] = self._value(shape.schemas(move[1]), [move[2]], depth + 1)
-                except _Impossible:
-                    continue
+            try:
+                self._move(out, n, shape, move, depth)
+            except _Impossible:
+                continue
             if not _locally_valid(out, n):
                 return
+
+    def _move(self, out: dict[str, Any], n: dict[str, Any], shape: "_Shape", move: tuple[Any, ...], depth: int) -> None:
+        kind = move[0]
+        if kind == "drop":
+            if len(out) - 1 >= shape.min_props:
+                del out[move[1]]
+        elif kind == "refuse":
+            out[move[1]] = self._value(shape.schemas(move[1]), [move[2]], depth + 1)
+        elif kind == "pattern":
+            name = self._regex.xeger(move[1])
+            if name not in out and shape.allowed(name):
+                out[name] = self._value(shape.schemas(name), [move[2]], depth + 1)
+        elif kind == "extra":
+            own = set(n.get("properties") or {})
+            patterns = [p for p in n.get("patternProperties") or {} if isinstance(p, str)]
+            free = self._free_name(shape, out, avoid=lambda x: x in own or any(_search(p, x) for p in patterns))
+            if free is not None:
+                out[free] = self._value(shape.schemas(free), [] if move[1] is False else [move[1]], depth + 1)
+        elif kind == "grow":
+            while len(out) <= move[1]:
+                free = self._free_name(shape, out)
+                if free is None:
+                    return
+                out[free] = self._value(shape.schemas(free), [], depth + 1)
+        elif kind == "name":
+            name = self._value([{"type": "string"}, *shape.names], [move[1]], depth + 1)
+            if name not in out and shape.allowed(name):
+                out[name] = self._value(shape.schemas(name), [], depth + 1)
 
 
 class _Shape:
@@ -562,6 +670,27 @@ class _Shape:
     def allowed(self, name: str) -> bool:
         return all(s is not False for s in self.schemas(name)) and all(
             _locally_valid(name, names) for names in self.names)
+
+
+_SURE = {  # keywords each kind of value is built to satisfy outright (the whole value is checked at the end)
+    "scalar": {"type", "minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "multipleOf", "minLength",
+               "maxLength", "pattern"},
+    "array": {"type", "items", "minItems", "maxItems"},
+}
+_VOCABULARY = {"type", "enum", "const", "multipleOf", "maximum", "exclusiveMaximum", "minimum", "exclusiveMinimum",
+               "maxLength", "minLength", "pattern", "format", "items", "additionalItems", "maxItems", "minItems",
+               "uniqueItems", "contains", "maxProperties", "minProperties", "required", "properties",
+               "patternProperties", "additionalProperties", "dependencies", "propertyNames"}
+
+
+def _built_right(value: Any, flat: list[dict[str, Any]]) -> bool:
+    """The value needs no check of its own here: the builder satisfies every keyword it was given
+    (a number within merged bounds, a list of items each checked in turn); it saves a validation per
+    item of a 64-item array."""
+    if isinstance(value, dict):
+        return False
+    sure = _SURE["array"] if isinstance(value, list) else _SURE["scalar"]
+    return all(not isinstance(s.get("items"), list) and _VOCABULARY.intersection(s) <= sure for s in flat)
 
 
 def _item_schemas(s: dict[str, Any], i: int) -> list[Any]:
@@ -745,14 +874,19 @@ def _local_contradiction(s: dict[str, Any]) -> str | None:
                 return f"required {name!r} and additionalProperties false (not in properties)"
     if "const" in s or "enum" in s:
         options = [s["const"]] if "const" in s else s["enum"] if isinstance(s["enum"], list) else []
-        rest = {k: v for k, v in s.items() if k not in ("const", "enum")}
+        rest = {k: v for k, v in s.items() if k != ("const" if "const" in s else "enum")}
         if not options:
             return "enum [] allows nothing"
         if not any(_locally_valid(v, rest) for v in options):
             term = f"const {_show(s['const'])}" if "const" in s else f"enum {_show(options)}"
-            others = ", ".join(k for k in rest if k not in ("title", "description", "unit", "readOnly", "writeOnly"))
+            others = ", ".join(f"{k} {_show(v)}" for k, v in rest.items() if k in _VALIDATION)
             return f"{term} and {others or 'its other keywords'}: no value listed satisfies the others"
     return None
+
+
+_VALIDATION = ("type", "enum", "const", "multipleOf", "maximum", "exclusiveMaximum", "minimum", "exclusiveMinimum",
+               "maxLength", "minLength", "pattern", "format", "maxItems", "minItems", "uniqueItems", "maxProperties",
+               "minProperties", "required")
 
 
 def _show(v: Any) -> str:
