@@ -21,7 +21,11 @@ metres for positions and sizes, degrees for angles (`yaw`, `rpy`). Example::
   `rpy`; `"roll": 180` hangs it from the ceiling).
 - `bodies[].type`: `"urdf"` (a URDF file: a path relative to the scene file, an absolute path, or
   `pybullet_data:<path>` for pybullet's bundled models; optional `scale`), `"box"` (`size`: full
-  extents x, y, z) or `"cylinder"` (`radius`, `length` along the body's z axis).
+  extents x, y, z), `"cylinder"` (`radius`, `length` along the body's z axis), `"mesh"` (`file`: a
+  CAD mesh, STL, OBJ, PLY or glTF, relative to the scene file; optional `scale`; a closed mesh is
+  split into convex parts, an open one stays a surface) or `"points"` (`file`: a scan, PCD, PLY or
+  XYZ text, in the sensor's frame, `position`/`rpy` being the sensor's pose; `voxel`, m, the
+  resolution of the boxes standing for it; `scale`). See `tdgen.robot.scan_bodies`.
 - Every body has an optional `name`, `position` (its origin; for boxes and cylinders the centre)
   and `rpy` (fixed-axis roll, pitch, yaw in degrees); boxes and cylinders an optional `rgba`.
 - Every body is static (fixed base, mass 0): scenes describe surroundings, not things that move.
@@ -99,7 +103,23 @@ class CylinderBody(_Body, tag="cylinder"):
     rgba: tuple[float, float, float, float] = (0.7, 0.7, 0.7, 1.0)
 
 
-Body = Union[UrdfBody, BoxBody, CylinderBody]
+class MeshBody(_Body, tag="mesh"):
+    file: str  # STL, OBJ, PLY, glTF/GLB, OFF, DAE; relative to the scene file
+    scale: float = 1.0
+    rgba: tuple[float, float, float, float] = (0.7, 0.7, 0.7, 1.0)
+
+
+class PointsBody(_Body, tag="points"):
+    """A scan in the sensor's frame; `position`/`rpy` are the sensor's pose."""
+
+    file: str  # PCD, PLY, XYZ text, LAS/LAZ, E57; relative to the scene file
+    voxel: float = 0.02  # m, the resolution of the boxes that stand for the points
+    scale: float = 1.0  # 0.001 for a scan in millimetres
+    rgba: tuple[float, float, float, float] = (0.5, 0.6, 0.7, 1.0)
+
+
+Body = Union[UrdfBody, BoxBody, CylinderBody, MeshBody, PointsBody]
+FileBody = (MeshBody, PointsBody)
 
 
 class Surroundings(msgspec.Struct, forbid_unknown_fields=True):
@@ -185,6 +205,9 @@ def load_scene(name_or_path: str | Path, robot: str | None = None) -> Surroundin
         _check_body(path, k, body)
         if isinstance(body, UrdfBody) and not body.urdf.startswith(PYBULLET_DATA):
             body = msgspec.structs.replace(body, urdf=str((path.parent / body.urdf).resolve()))
+        if isinstance(body, FileBody):
+            body = msgspec.structs.replace(body, file=str((path.parent / body.file).resolve()))
+            prepare(body)  # read now: a bad file stops the scene here, before anything starts
         bodies.append(body)
     return msgspec.structs.replace(scene, bodies=bodies)
 
@@ -230,6 +253,10 @@ def _check_body(path: Path, k: int, body: Body) -> None:
             raise SceneError(f"{where}: scale must be positive")
         if not urdf_path(body.urdf, path.parent).is_file():
             raise SceneError(f"{where}: URDF {body.urdf!r} not found")
+    if isinstance(body, FileBody) and body.scale <= 0:
+        raise SceneError(f"{where}: scale must be positive")
+    if isinstance(body, PointsBody) and not 0.001 <= body.voxel <= 0.5:
+        raise SceneError(f"{where}: voxel must be between 0.001 and 0.5 m, got {body.voxel:g}")
 
 
 def urdf_path(urdf: str, base_dir: Path) -> Path:
@@ -264,6 +291,11 @@ def build_into(scene: Surroundings, client: int) -> list[int]:
             except pb.error as exc:
                 raise SceneError(f"scene {scene.name}: pybullet cannot load {body.urdf} ({exc})") from None
             continue
+        if isinstance(body, FileBody):
+            from tdgen.robot.scan_bodies import build
+
+            ids.append(build(prepare(body), body.position, orn, client))
+            continue
         if isinstance(body, BoxBody):
             half = [s / 2 for s in body.size]
             col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=client)
@@ -274,7 +306,44 @@ def build_into(scene: Surroundings, client: int) -> list[int]:
             vis = pb.createVisualShape(pb.GEOM_CYLINDER, radius=body.radius, length=body.length,
                                        rgbaColor=body.rgba, physicsClientId=client)
         ids.append(pb.createMultiBody(0.0, col, vis, list(body.position), orn, physicsClientId=client))
+    if any(isinstance(b, FileBody) for b in scene.bodies):
+        _quiet_static_pairs(client, ids)
     return ids
+
+
+def _quiet_static_pairs(client: int, new: list[int]) -> None:
+    """No contacts computed between two static bodies (one of them new) whose boxes overlap: a scan's
+    triangles against the table it was scanned with cost every collision check milliseconds, and
+    nothing asks for those contacts (bodies that move, robots and cubes, are left alone)."""
+    import pybullet as pb
+
+    def static(b: int) -> bool:
+        return (pb.getDynamicsInfo(b, -1, physicsClientId=client)[0] == 0
+                and all(pb.getJointInfo(b, j, physicsClientId=client)[2] == pb.JOINT_FIXED
+                        for j in range(pb.getNumJoints(b, physicsClientId=client))))
+
+    bodies = [pb.getBodyUniqueId(k, physicsClientId=client) for k in range(pb.getNumBodies(physicsClientId=client))]
+    boxes = {b: [(link, *pb.getAABB(b, link, physicsClientId=client))
+                 for link in range(-1, pb.getNumJoints(b, physicsClientId=client))] for b in bodies if static(b)}
+    fresh = set(new)
+    for a in boxes:
+        for b in boxes:
+            if a >= b or (a not in fresh and b not in fresh):
+                continue
+            for la, lo_a, hi_a in boxes[a]:
+                for lb, lo_b, hi_b in boxes[b]:
+                    if all(lo_a[k] <= hi_b[k] and lo_b[k] <= hi_a[k] for k in range(3)):
+                        pb.setCollisionFilterPair(a, b, la, lb, 0, physicsClientId=client)
+
+
+def prepare(body: "MeshBody | PointsBody"):
+    """A mesh or scan body read and made into collision pieces (`scan_bodies.Prepared`), cached."""
+    from tdgen.robot.scan_bodies import prepare_mesh, prepare_points
+
+    path = Path(body.file)
+    if isinstance(body, PointsBody):
+        return prepare_points(path, body.voxel, body.scale)
+    return prepare_mesh(path, body.scale)
 
 
 def cluttered_lab(shelves: int = 2, levels: int = 4, items_per_level: int = 8) -> Surroundings:

@@ -1,0 +1,229 @@
+"""Scene bodies from scans and CAD meshes, as pybullet collision shapes the exact test and the fast model read.
+
+- A point cloud becomes the voxels its points fall in, merged into as few boxes as a greedy sweep
+  along x, y then z finds, each grown by `PAD` so that nothing within `PAD` of a scanned point can be
+  called free; a point never lies more than a voxel's diagonal plus `PAD` inside a box, so what
+  keeps that far from every point is free.
+- A closed mesh that is convex stays one hull; a closed non-convex one is split into convex hulls
+  by V-HACD (pybullet's own); an open surface (a scanned room, one wall) stays a surface, a static
+  triangle mesh, never filled to its hull.
+
+pybullet gives a body at most `MAX_PARTS` links and a compound shape few children, so each body's
+pieces are split into at most that many spatial groups (a k-d split along the widest axis), each
+one link: a triangle mesh of its boxes' faces, a patch of the surface, or one hull. The fast model
+(`spheres.scene_elements`) sees each link as the box around it and leaves what touches that box to
+the exact test. Everything is made once per file content, voxel and scale, and kept under the cache
+dir (`$TWINMESH_CACHE/scans`, or `~/.cache/twinmesh/scans`).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tdgen.robot.scan_io import read_cloud, read_mesh
+
+PAD = 0.006  # m each box grows: a sample within 5 mm of a scanned point collides (pybullet counts 0.1 mm deep)
+DEFAULT_VOXEL = 0.02  # m
+MAX_PARTS = 128  # pybullet's links per created body (127) and its base
+FORMAT = 1  # the cache entries' layout: a change makes old entries unused
+
+
+@dataclass
+class Prepared:
+    """A scan or mesh body ready to build: its pieces in the body's own frame."""
+
+    kind: str  # "voxels", "hull", "hulls" or "surface"
+    parts: list[tuple[np.ndarray, np.ndarray]]  # per link: (vertices (V, 3), triangles (T, 3)); no triangles: a hull
+    stats: dict[str, int] = field(default_factory=dict)  # points kept, voxels, boxes, hulls, triangles
+    low: np.ndarray = field(default_factory=lambda: np.zeros(3))  # bounding box in the body frame (m)
+    high: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    seconds: float = 0.0  # to read and prepare (or take from the cache)
+    cached: bool = False
+
+
+def cache_dir() -> Path:
+    root = os.environ.get("TWINMESH_CACHE")
+    return (Path(root).expanduser() if root else Path.home() / ".cache" / "twinmesh") / "scans"
+
+
+_MEMORY: dict[tuple, Prepared] = {}
+
+
+def prepare_points(path: Path, voxel: float = DEFAULT_VOXEL, scale: float = 1.0) -> Prepared:
+    """The cloud in `path` as padded voxel boxes (body frame)."""
+    return _prepared(path, ("points", voxel, scale), lambda: _voxels(read_cloud(path, scale), voxel))
+
+
+def prepare_mesh(path: Path, scale: float = 1.0) -> Prepared:
+    """The mesh in `path` as one hull, convex hulls (closed, non-convex) or a surface (open)."""
+    return _prepared(path, ("mesh", scale), lambda: _mesh(read_mesh(path, scale)))
+
+
+def _prepared(path: Path, params: tuple, make) -> Prepared:
+    """`make()` once per file content and `params`: from memory, from the cache dir, or made and kept."""
+    start = time.perf_counter()
+    stat = path.stat() if path.is_file() else None
+    quick = (str(path), stat.st_mtime_ns if stat else 0, stat.st_size if stat else 0, params)
+    if quick in _MEMORY:
+        return _MEMORY[quick]
+    digest = hashlib.sha256(path.read_bytes()).hexdigest() if stat else ""
+    key = hashlib.sha256(repr((FORMAT, digest, params)).encode()).hexdigest()[:32]
+    entry = cache_dir() / f"{key}.npz"
+    prepared = _load(entry) if digest else None
+    if prepared is None:
+        prepared = make()
+        if digest:
+            _store(entry, prepared)
+    else:
+        prepared.cached = True
+    prepared.seconds = time.perf_counter() - start
+    _MEMORY[quick] = prepared
+    return prepared
+
+
+def _store(entry: Path, p: Prepared) -> None:
+    arrays: dict[str, np.ndarray] = {"kind": np.array(p.kind), "low": p.low, "high": p.high,
+                                     "stats": np.array(list(p.stats.items()), dtype=object)}
+    for k, (v, t) in enumerate(p.parts):
+        arrays[f"v{k}"], arrays[f"t{k}"] = v, t
+    try:
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=entry.parent, suffix=".npz", delete=False) as f:
+            np.savez(f, **arrays)  # type: ignore[arg-type]
+        os.replace(f.name, entry)  # whole or not at all
+    except OSError:  # a read-only cache dir costs time, not correctness
+        pass
+
+
+def _load(entry: Path) -> Prepared | None:
+    try:
+        with np.load(entry, allow_pickle=True) as z:
+            parts = [(z[f"v{k}"], z[f"t{k}"]) for k in range(sum(1 for n in z.files if n.startswith("v")))]
+            return Prepared(str(z["kind"]), parts, {str(a): int(b) for a, b in z["stats"]}, z["low"], z["high"])
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def _voxels(points: np.ndarray, voxel: float) -> Prepared:
+    cells = np.unique(np.floor(points / voxel).astype(np.int64), axis=0)
+    lo_cells, hi_cells = merge_cells(cells)
+    lows, highs = lo_cells * voxel - PAD, (hi_cells + 1) * voxel + PAD
+    parts = [_box_mesh(lows[g], highs[g]) for g in _split((lows + highs) / 2, MAX_PARTS)]
+    stats = {"points": len(points), "voxels": len(cells), "boxes": len(lows)}
+    return Prepared("voxels", parts, stats, lows.min(axis=0), highs.max(axis=0))
+
+
+def merge_cells(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Occupied integer cells (N, 3) -> boxes (lowest cell, highest cell), (B, 3) each, covering exactly
+    them: runs along x, then runs of equal x-runs along y, then along z."""
+    lo, hi = cells.copy(), cells.copy()
+    for axis in range(3):
+        others = [a for a in range(3) if a != axis]
+        # boxes that agree on everything but `axis` and touch along it are one
+        keys = np.column_stack([lo[:, others], hi[:, others]])
+        order = np.lexsort((lo[:, axis], *keys.T[::-1]))
+        lo, hi, keys = lo[order], hi[order], keys[order]
+        same = np.all(keys[1:] == keys[:-1], axis=1) & (lo[1:, axis] == hi[:-1, axis] + 1)
+        starts = np.flatnonzero(np.concatenate([[True], ~same]))
+        ends = np.concatenate([starts[1:], [len(lo)]]) - 1
+        new_hi = hi[starts].copy()
+        new_hi[:, axis] = hi[ends, axis]
+        lo, hi = lo[starts], new_hi
+    return lo, hi
+
+
+def _box_mesh(lows: np.ndarray, highs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The boxes' 8 corners and 12 triangles each, as one triangle soup."""
+    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=float)
+    tri = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                    [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    verts = lows[:, None, :] + corners[None] * (highs - lows)[:, None, :]
+    faces = tri[None] + 8 * np.arange(len(lows))[:, None, None]
+    return verts.reshape(-1, 3), faces.reshape(-1, 3)
+
+
+def _split(centres: np.ndarray, groups: int) -> list[np.ndarray]:
+    """Indices of `centres` in at most `groups` spatial groups, halved along the widest axis in turn."""
+    pending = [np.arange(len(centres))]
+    while len(pending) < groups:
+        k = max(range(len(pending)), key=lambda i: len(pending[i]))
+        idx = pending[k]
+        if len(idx) < 2:
+            break
+        pts = centres[idx]
+        axis = int(np.argmax(pts.max(axis=0) - pts.min(axis=0)))
+        order = idx[np.argsort(pts[:, axis], kind="stable")]
+        half = len(order) // 2
+        pending[k:k + 1] = [order[:half], order[half:]]
+    return [p for p in pending if len(p)]
+
+
+def _mesh(mesh) -> Prepared:
+    stats = {"triangles": len(mesh.faces)}
+    low, high = mesh.bounds
+    if not mesh.is_watertight:  # an open surface: patches of its own triangles
+        centres = mesh.triangles_center
+        parts = []
+        for group in _split(centres, MAX_PARTS):
+            sub = mesh.submesh([group], append=True, repair=False)
+            parts.append((np.asarray(sub.vertices), np.asarray(sub.faces)))
+        return Prepared("surface", parts, stats, low, high)
+    if mesh.is_convex:
+        return Prepared("hull", [(np.asarray(mesh.vertices), np.zeros((0, 3), dtype=np.int64))],
+                        stats | {"hulls": 1}, low, high)
+    hulls = decompose(mesh)
+    return Prepared("hulls", [(h, np.zeros((0, 3), dtype=np.int64)) for h in hulls],
+                    stats | {"hulls": len(hulls)}, low, high)
+
+
+def decompose(mesh) -> list[np.ndarray]:
+    """A closed mesh's convex parts (each its corners) by pybullet's V-HACD, at most `MAX_PARTS`."""
+    import pybullet as pb
+    import trimesh
+
+    with tempfile.TemporaryDirectory() as tmp:
+        src, out, log = (str(Path(tmp) / n) for n in ("in.obj", "out.obj", "log.txt"))
+        mesh.export(src)
+        client = pb.connect(pb.DIRECT)
+        try:
+            pb.vhacd(src, out, log, resolution=200000, maxNumVerticesPerCH=64, physicsClientId=client)
+        finally:
+            pb.disconnect(client)
+        loaded = trimesh.load(out, split_object=True, group_material=False, process=False)
+    pieces = list(loaded.geometry.values()) if hasattr(loaded, "geometry") else [loaded]
+    hulls = [np.asarray(p.vertices) for p in pieces if len(p.vertices) >= 4]  # type: ignore[union-attr]
+    if not hulls:  # V-HACD found nothing: the whole hull, which is too much but never too little
+        return [np.asarray(mesh.convex_hull.vertices)]
+    while len(hulls) > MAX_PARTS:  # join the two smallest: still hulls, a little larger
+        hulls.sort(key=len)
+        a, b = hulls.pop(0), hulls.pop(0)
+        hulls.append(np.asarray(trimesh.convex.convex_hull(np.vstack([a, b])).vertices))
+    return hulls
+
+
+def build(prepared: Prepared, position, orientation, client: int) -> int:
+    """The body in pybullet client `client`: a static body whose links are the prepared parts."""
+    import pybullet as pb
+
+    shapes = []
+    for verts, tris in prepared.parts:
+        if len(tris):
+            shapes.append(pb.createCollisionShape(pb.GEOM_MESH, vertices=verts.tolist(), indices=tris.reshape(-1).tolist(),
+                                                  flags=pb.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=client))
+        else:
+            shapes.append(pb.createCollisionShape(pb.GEOM_MESH, vertices=verts.tolist(), physicsClientId=client))
+    base, links = shapes[0], shapes[1:]
+    n = len(links)
+    return pb.createMultiBody(0.0, base, -1, list(position), list(orientation), linkMasses=[0.0] * n,
+                              linkCollisionShapeIndices=links, linkVisualShapeIndices=[-1] * n,
+                              linkPositions=[[0.0, 0.0, 0.0]] * n, linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * n,
+                              linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n,
+                              linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n, linkParentIndices=[0] * n,
+                              linkJointTypes=[pb.JOINT_FIXED] * n, linkJointAxis=[[0.0, 0.0, 1.0]] * n,
+                              physicsClientId=client)

@@ -1,0 +1,140 @@
+"""Reading a scene's scans and CAD meshes: every file format a `points` or `mesh` body may name.
+
+Clouds come back as (N, 3) float arrays in the file's own frame (the sensor's), NaN points (an
+organized cloud's holes) dropped; meshes as trimesh meshes. Each problem is one `SceneError` naming
+the file and what is wrong with it, so a lab refuses a bad scene before it starts anything.
+
+PCD goes through pypcd4 (ascii, binary and LZF binary_compressed, any extra fields such as `label`
+or `rgba`): small, pure Python with a C LZF codec, where open3d would bring a few hundred MB for one
+reader. PLY, STL, OBJ and glTF go through trimesh; LAS/LAZ through laspy and E57 through pye57 when
+installed (neither is needed for the other formats).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from tdgen.robot.surroundings import SceneError
+
+CLOUD_SUFFIXES = (".pcd", ".ply", ".xyz", ".pts", ".txt", ".csv", ".las", ".laz", ".e57")
+MESH_SUFFIXES = (".stl", ".obj", ".ply", ".glb", ".gltf", ".off", ".dae")
+LARGEST_EXTENT = 100.0  # m: a scan wider than this is taken for millimetres given as metres
+
+
+def read_cloud(path: Path, scale: float = 1.0) -> np.ndarray:
+    """The finite points of the cloud in `path` (m, the file's frame, times `scale`)."""
+    suffix = path.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise SceneError(f"{path}: unknown point cloud format {suffix or '(no extension)'!r} "
+                         f"(known: {', '.join(CLOUD_SUFFIXES)})")
+    _readable(path)
+    try:
+        raw = _CLOUD_READERS[suffix](path)
+    except SceneError:
+        raise
+    except Exception as exc:  # each library fails in its own way on a broken file
+        raise SceneError(f"{path}: cannot read the point cloud ({type(exc).__name__}: {exc})") from None
+    points = np.asarray(raw, dtype=float).reshape(-1, 3)
+    if not len(points):
+        raise SceneError(f"{path}: the point cloud holds no points")
+    points = points[np.isfinite(points).all(axis=1)] * scale
+    if not len(points):
+        raise SceneError(f"{path}: every point of the cloud is NaN or infinite (an organized cloud with no return)")
+    extent = float(np.max(points.max(axis=0) - points.min(axis=0)))
+    if extent > LARGEST_EXTENT:
+        raise SceneError(f"{path}: the cloud is {extent:,.0f} m across: millimetres given as metres? "
+                         "(give the body \"scale\": 0.001)")
+    return points
+
+
+def read_mesh(path: Path, scale: float = 1.0):
+    """The mesh in `path` (trimesh.Trimesh, every part of a glTF scene in one, times `scale`)."""
+    import trimesh
+
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise SceneError(f"{path}: unknown mesh format {suffix or '(no extension)'!r} (known: {', '.join(MESH_SUFFIXES)})")
+    _readable(path)
+    try:
+        mesh = trimesh.load(str(path), force="mesh", process=True)
+    except Exception as exc:
+        raise SceneError(f"{path}: cannot read the mesh ({type(exc).__name__}: {exc})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or not len(mesh.faces):
+        raise SceneError(f"{path}: the mesh has no faces (a point cloud? use a \"points\" body)")
+    if not np.isfinite(mesh.vertices).all():
+        raise SceneError(f"{path}: the mesh has NaN or infinite vertices")
+    mesh.apply_scale(scale)
+    extent = float(np.max(mesh.extents))
+    if extent > LARGEST_EXTENT:
+        raise SceneError(f"{path}: the mesh is {extent:,.0f} m across: millimetres given as metres? "
+                         "(give the body \"scale\": 0.001)")
+    return mesh
+
+
+def _readable(path: Path) -> None:
+    if not path.is_file():
+        raise SceneError(f"{path}: file not found")
+    if path.stat().st_size == 0:
+        raise SceneError(f"{path}: the file is empty")
+
+
+def _pcd(path: Path) -> np.ndarray:
+    from pypcd4 import PointCloud
+
+    cloud = PointCloud.from_path(path)
+    missing = [f for f in "xyz" if f not in cloud.fields]
+    if missing:
+        raise SceneError(f"{path}: the PCD file has no {'/'.join(missing)} field (fields: {', '.join(cloud.fields)})")
+    return cloud.numpy(("x", "y", "z"))
+
+
+def _ply(path: Path) -> np.ndarray:
+    import trimesh
+
+    loaded = trimesh.load(str(path), process=False)
+    return np.asarray(loaded.vertices)  # type: ignore[attr-defined]  # a PointCloud or a Trimesh
+
+
+def _text(path: Path) -> np.ndarray:
+    """Plain XYZ text: x y z first on each line (spaces, commas or semicolons), more columns ignored,
+    a header line and `#` comments skipped."""
+    import re
+
+    rows = []
+    for line in path.read_text(errors="replace").splitlines():
+        fields = [f for f in re.split(r"[\s,;]+", line.split("#", 1)[0].strip()) if f]
+        if not fields:
+            continue
+        try:
+            rows.append([float(f) for f in fields[:3]])
+        except ValueError:
+            if rows:  # a header is the first line, not one in the middle
+                raise SceneError(f"{path}: line {line[:60]!r} is not x y z numbers") from None
+            continue
+        if len(rows[-1]) != 3:
+            raise SceneError(f"{path}: line {line[:60]!r} has fewer than 3 numbers")
+    return np.array(rows).reshape(-1, 3)
+
+
+def _las(path: Path) -> np.ndarray:
+    try:
+        import laspy
+    except ImportError:
+        raise SceneError(f"{path}: LAS/LAZ scans need laspy (pip install laspy)") from None
+    las = laspy.read(str(path))
+    return np.column_stack([las.x, las.y, las.z])
+
+
+def _e57(path: Path) -> np.ndarray:
+    try:
+        import pye57
+    except ImportError:
+        raise SceneError(f"{path}: E57 scans need pye57 (pip install pye57)") from None
+    e57 = pye57.E57(str(path))
+    scans = [e57.read_scan(k, ignore_missing_fields=True, transform=True) for k in range(e57.scan_count)]
+    return np.vstack([np.column_stack([s["cartesianX"], s["cartesianY"], s["cartesianZ"]]) for s in scans])
+
+
+_CLOUD_READERS = {".pcd": _pcd, ".ply": _ply, ".xyz": _text, ".pts": _text, ".txt": _text, ".csv": _text,
+                  ".las": _las, ".laz": _las, ".e57": _e57}
