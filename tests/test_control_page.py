@@ -138,6 +138,8 @@ def test_inputs_start_from_the_things_state_and_follow_it_until_edited(lab, page
         target = 20.0 if http.get("/pan-tilt-1/properties/panPosition").json() < 10 else 0.0
         http.post("/pan-tilt-1/actions/panTo", json=target).raise_for_status()
         expect(pan_to).to_have_value(f"{target:g}", timeout=LIVE)  # panTo follows panPosition, live
+        move_to = opened(page, "pan-tilt-1", "moveTo")  # and moveTo's panAngle too, by its name and unit
+        expect(move_to.locator("input[name=panAngle]")).to_have_value(f"{target:g}")
         pan_to.fill("-30")  # the user's edit stays while the Thing moves
         http.post("/pan-tilt-1/actions/panTo", json=5.0).raise_for_status()
         expect(section(page, "pan-tilt-1").locator("output[data-property=panPosition]")).to_have_text("5", timeout=LIVE)

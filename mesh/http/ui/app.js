@@ -243,10 +243,11 @@ function draw() {
     for (const name of card.changed) {
       const out = card.outputs.get(name);
       if (!out) continue;
-      const open = [...out.el.querySelectorAll("details[open]")].map((d) => d.parentElement?.dataset.key);
+      const where = (d) => d.parentElement?.closest("[data-key]")?.dataset.key ?? "";
+      const open = [...out.el.querySelectorAll("details[open]")].map(where);
       out.el.replaceChildren(readout(out.schema, card.values[name], 0, name));
       for (const d of out.el.querySelectorAll("details")) {  // keep a folded value open while it changes
-        if (open.includes(d.parentElement?.dataset.key)) d.open = true;
+        if (open.includes(where(d))) d.open = true;
       }
     }
     card.changed.clear();

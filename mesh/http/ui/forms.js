@@ -143,7 +143,8 @@ function group(schema, opts) {
     seed(fn) {
       const v = fn(schema);
       if (v !== undefined) this.set(v);
-      parts.forEach(([k, f]) => { if (!v || !(k in v)) f.seed(fn); });  // a part the whole did not fill
+      // a part the whole did not fill: from what its own name says (`panAngle` from `panPosition`)
+      parts.forEach(([k, f]) => { if (!v || !(k in v)) f.seed((s, key) => fn(s, key ?? k)); });
     },
   };
 }
@@ -372,12 +373,15 @@ function folded(value, summary) {
 // --- what the Thing's state says an input should start from ---------------------------------------------
 // guesser(values, schemas)(schema) -> a value for `schema` from the Thing's current property values: an object input
 // takes the keys it shares with an object property (a move's x, y, z from the current position; joints from the
-// joint position), a scalar input the property its action is named after (`panTo` from `panPosition`).
+// joint position), a scalar input the property its action or its key is named after (`panTo` and `panAngle` from
+// `panPosition`), with the same unit.
+const stemOf = (name) => name.replace(/^(set|go|move)(?=[A-Z])/, "").replace(/(To|Angle|Position|Value)$/, "")
+  .toLowerCase();
+
 export function guesser(values, schemas, action = "") {
   const records = Object.entries(values).map(([name, v]) => [name, asRecord(schemas[name] || {}, v, name)])
     .filter(([, r]) => r !== null);
-  const stem = action.replace(/^(set|go|move)(?=[A-Z])/, "").replace(/To$/, "").toLowerCase();
-  return (schema) => {
+  return (schema, key) => {
     const kind = kindOf(schema);
     if (kind === "object" && schema.properties) {
       const keys = Object.keys(schema.properties);
@@ -392,7 +396,8 @@ export function guesser(values, schemas, action = "") {
       const r = records.find(([n]) => n === best)[1];
       return Object.fromEntries(keys.filter((k) => k in r).map((k) => [k, r[k]]));
     }
-    if ((kind === "number" || kind === "integer" || kind === "boolean") && stem) {
+    const stem = stemOf(key || action);
+    if ((kind === "number" || kind === "integer" || kind === "boolean") && stem.length >= 3) {
       const hit = Object.entries(values).find(([name, v]) => name.toLowerCase().startsWith(stem)
         && typeof v === (kind === "boolean" ? "boolean" : "number") && unitName(schemas[name]) === unitName(schema));
       return hit ? hit[1] : undefined;
