@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -35,6 +36,7 @@ DOCS = REPO / "docs"
 RUN = ("twinmesh", "curl", "printf")
 STREAMS = ("twinmesh observe", "twinmesh subscribe")
 STREAM_SECONDS = 3.0
+VALUED = {"--prefix", "--connect", "--listen", "--mode", "--secrets"}  # the global options that take a value
 BLOCK = re.compile(r"(?:<!--\s*not run:(?P<reason>(?:(?!-->).)*)-->[ \t]*\n)?"  # the mark, right before the fence
                    r"^```(?P<kind>sh|python)[^\n]*\n(?P<body>.*?)^```", flags=re.S | re.M)
 
@@ -69,8 +71,17 @@ def pages() -> list[Path]:
 def lab_order(text: str) -> tuple[str, int]:
     """The page's first lab; a page that goes on to another lab comes last among those that share its first."""
     labs = [strip_comment(line).rstrip("&").strip() for block in blocks(text) if block.kind == "sh" and block.not_run is None
-            for line in sh_lines(block.body) if line.startswith("twinmesh up")]
+            for line in sh_lines(block.body) if up_at(strip_comment(line).rstrip("&")) is not None]
     return (labs[0], len(set(labs))) if labs else ("", 0)
+
+
+def up_at(command: str) -> int | None:
+    """Where `up` is among the command's words, when the command starts a lab (`twinmesh [global options] up`)."""
+    words = shlex.split(command)
+    i = 1
+    while i < len(words) and words[0] == "twinmesh" and words[i].startswith("-"):
+        i += 2 if words[i] in VALUED else 1
+    return i if words[:1] == ["twinmesh"] and i < len(words) and words[i] == "up" else None
 
 
 def strip_comment(command: str) -> str:
@@ -133,13 +144,16 @@ class Walk:
                 for line in sh_lines(block.body):
                     self.run(f"{where}:{block.line}: {line}")
         self.stop_background()
+        if self.lab is not None and self.lab.poll() is not None:  # said on the page that started it, not the next
+            self.failures.append(f"the lab exited on its own ({self.lab.returncode}):\n{self.output(self.lab_log)}")
+            self.lab, self.lab_command = None, ""
 
     def run(self, original: str) -> None:
         self.n += 1
         command = strip_comment(original.split(": ", 1)[1])
         background = command.endswith("&")
         command = command.rstrip("&").strip()
-        if command.startswith("twinmesh up"):
+        if up_at(command) is not None:
             self.start_lab(command)
         elif background:
             self.background.append((original, self.shell(self.rewrite(command), f"{self.n}.log")))
@@ -167,7 +181,9 @@ class Walk:
         if "--view" not in command and "--no-view" not in command:
             extra += f" --view 127.0.0.1:{free_port()}"
         self.n += 1
-        self.lab = self.shell(self.rewrite(command.replace("twinmesh up", "twinmesh up" + extra, 1)), f"{self.n}.log")
+        words = shlex.split(command)
+        at = up_at(command) + 1
+        self.lab = self.shell(self.rewrite(shlex.join(words[:at] + extra.split() + words[at:])), f"{self.n}.log")
         self.lab_command, self.lab_log = command, f"{self.n}.log"
 
     def stream(self, original: str, command: str) -> None:
@@ -251,7 +267,7 @@ def test_every_block_runs_or_says_why(page):
 def test_the_readme_shows_a_lab_a_request_and_python():
     readme = blocks(README.read_text())
     run = [line for b in readme if b.kind == "sh" and b.not_run is None for line in sh_lines(b.body)]
-    assert any(line.startswith("twinmesh up") for line in run)
+    assert any(up_at(line.rstrip("&")) is not None for line in run)
     assert any(line.startswith("curl") for line in run)
     assert any(b.kind == "python" and b.not_run is None for b in readme)
     assert len(README.read_text().splitlines()) <= 200, "the README is a front page: 200 lines at most"
@@ -264,6 +280,17 @@ def test_a_marked_block_is_left_out_and_its_reason_kept():
     assert [(b.kind, b.not_run) for b in found] == [("sh", "needs the real lab"), ("python", None), ("sh", None)]
     assert sh_lines(found[2].body) == ["twinmesh things   # all"]
     assert found[0].line == 4
+
+
+@pytest.mark.parametrize("command, at", [
+    ("twinmesh up --speed max", 1),
+    ("twinmesh --secure up lights", 2),
+    ("twinmesh --listen tcp/0.0.0.0:7447 up", 3),
+    ("twinmesh --connect tcp/h:7447 things", None),
+    ("twinmesh upload", None),
+])
+def test_a_lab_is_started_by_up_after_any_global_options(command, at):
+    assert up_at(command) == at
 
 
 def test_a_comment_far_from_the_fence_marks_nothing():
