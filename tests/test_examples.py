@@ -1,9 +1,10 @@
 """Every example in examples/ runs as its README says, against real labs.
 
-One `lights` lab (with its tdgen service) serves the Python script, the thermostat TD under `twinmesh
-virtual` and the Panda on the workbench scene; an `iot-platform` lab the node-wot cube workflow; two
-network-namespace hosts the two-host recipe. Each example is run as a user runs it (`python FILE`,
-`node FILE`, `sh FILE`), with the lab's address given the way the example says it takes one.
+The session's shared `lights` lab (with its tdgen service; conftest.py) serves the Python script, the
+thermostat TD under `twinmesh virtual` and the Panda on the workbench scene; the shared `iot-platform`
+lab the node-wot cube workflow; two network-namespace hosts the two-host recipe, with a lab of their
+own. Each example is run as a user runs it (`python FILE`, `node FILE`, `sh FILE`), with the lab's
+address given the way the example says it takes one.
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from labs import PLATFORM_THINGS, REPO, start_lab, start_robot_lab, stop_process
+from labs import REPO, stop_process
 from waiting import eventually
 
 from mesh.wot.consumed import Inbox, NothingArrived
@@ -34,75 +35,6 @@ def _env(**extra: str) -> dict[str, str]:
 
 def _run(args: list[str], timeout: float = 120, **env: str) -> subprocess.CompletedProcess:
     return subprocess.run(args, capture_output=True, text=True, timeout=timeout, cwd=REPO, env=_env(**env))
-
-
-# The labs of their own first: the shared lights lab starts after them and lives until the module ends.
-
-# --- examples/node-wot ----------------------------------------------------------------------------
-
-
-@pytest.mark.interop
-def test_the_node_wot_script_runs_the_cube_workflow_by_affordance_names(tmp_path):
-    from interop import npm
-
-    npm.ensure_node_modules()  # node-wot 0.9.2 as the interop tests install it, shared with them
-    script = tmp_path / "cube-workflow.mjs"  # beside a node_modules, as after `npm install` in its folder
-    shutil.copy(EXAMPLES / "node-wot" / "cube-workflow.mjs", script)
-    (tmp_path / "node_modules").symlink_to(npm.INTEROP_DIR / "node_modules")
-    deps = json.loads((EXAMPLES / "node-wot" / "package.json").read_text())["dependencies"]
-    assert deps == {k: v for k, v in json.loads((npm.INTEROP_DIR / "package.json").read_text())["dependencies"].items()
-                    if k.startswith("@node-wot/")}, "the example asks for the node-wot the tests run"
-    lab = start_lab(tmp_path, "iot-platform", http=True, things=PLATFORM_THINGS, extra_args=("--speed", "max"))
-    try:
-        done = subprocess.run(["node", str(script), lab.http], capture_output=True, text=True, timeout=900, cwd=tmp_path)
-        steps = [line for line in done.stdout.splitlines() if line[:1].isdigit()]
-        assert done.returncode == 0, f"{done.stdout}\n--- stderr ---\n{done.stderr[-3000:]}"
-        assert len(steps) == 8 and all(line.endswith(": done") for line in steps), done.stdout
-        color = json.loads(done.stdout.split("colour: ", 1)[1])
-        assert len(color) == 3 and all(0 <= c <= 255 for c in color)
-    finally:
-        assert lab.stop(), "the lab did not stop cleanly"
-
-
-# --- examples/hosts -------------------------------------------------------------------------------
-
-
-def test_the_two_host_recipe_puts_host_b_devices_on_host_a_lab(tmp_path):
-    from tests import netns
-
-    why_not = netns.unavailable()
-    if why_not:
-        pytest.skip(f"network namespaces: {why_not}")
-    with netns.hosts(2) as net:
-        a, b = net.hosts
-        endpoint, base = f"tcp/{a.address}:7447", f"http://{a.address}:8080"
-        a_log, b_log = tmp_path / "host-a.log", tmp_path / "host-b.log"
-        a.popen(["sh", str(EXAMPLES / "hosts" / "host-a.sh"), "--no-view"], a_log, env=_env())
-        ready = _run(["twinmesh", "--connect", endpoint, "wait", "--timeout", "600"], timeout=660)
-        assert ready.returncode == 0, f"{ready.stderr}\n{a_log.read_text()[-3000:]}"
-        b.popen(["sh", str(EXAMPLES / "hosts" / "host-b.sh"), "--no-view"], b_log, env=_env(LAB_HOST=a.address))
-        station = {"belt-1", "infrared-1", "color-1", "light-1", "climate-1"}
-
-        def listed() -> list[str]:
-            names = _run(["twinmesh", "--connect", endpoint, "things"], timeout=60).stdout.split()
-            assert station | {"light-left", "light-right"} <= set(names), f"{names}\n{b_log.read_text()[-2000:]}"
-            return names
-
-        names = eventually(listed, timeout=600, what="host B's station listed by host A's lab")
-        assert names == sorted(names)
-        def read() -> float | None:
-            r = httpx.get(f"{base}/climate-1/properties/temperature", timeout=10)
-            return r.json() if r.status_code == 200 else None
-
-        temperature = eventually(read, timeout=120, what="host B's climate sensor read through host A's adapter")
-        assert isinstance(temperature, (int, float))
-
-
-@pytest.fixture(scope="module")
-def lights(tmp_path_factory):
-    lab = start_robot_lab(tmp_path_factory.mktemp("examples"))
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
 
 
 # --- examples/python ------------------------------------------------------------------------------
@@ -240,3 +172,60 @@ def test_the_foreign_panda_stands_on_the_workbench_scene(lights):
     finally:
         assert stop_process(proc), log.read_text()[-3000:]
         lights.extra.remove(proc)
+
+
+# --- examples/node-wot ----------------------------------------------------------------------------
+
+
+@pytest.mark.interop
+def test_the_node_wot_script_runs_the_cube_workflow_by_affordance_names(platform, tmp_path):
+    from interop import npm
+
+    npm.ensure_node_modules()  # node-wot 0.9.2 as the interop tests install it, shared with them
+    script = tmp_path / "cube-workflow.mjs"  # beside a node_modules, as after `npm install` in its folder
+    shutil.copy(EXAMPLES / "node-wot" / "cube-workflow.mjs", script)
+    (tmp_path / "node_modules").symlink_to(npm.INTEROP_DIR / "node_modules")
+    deps = json.loads((EXAMPLES / "node-wot" / "package.json").read_text())["dependencies"]
+    assert deps == {k: v for k, v in json.loads((npm.INTEROP_DIR / "package.json").read_text())["dependencies"].items()
+                    if k.startswith("@node-wot/")}, "the example asks for the node-wot the tests run"
+    done = subprocess.run(["node", str(script), platform.http], capture_output=True, text=True, timeout=900,
+                          cwd=tmp_path)
+    steps = [line for line in done.stdout.splitlines() if line[:1].isdigit()]
+    assert done.returncode == 0, f"{done.stdout}\n--- stderr ---\n{done.stderr[-3000:]}"
+    assert len(steps) == 8 and all(line.endswith(": done") for line in steps), done.stdout
+    color = json.loads(done.stdout.split("colour: ", 1)[1])
+    assert len(color) == 3 and all(0 <= c <= 255 for c in color)
+
+
+# --- examples/hosts -------------------------------------------------------------------------------
+
+
+def test_the_two_host_recipe_puts_host_b_devices_on_host_a_lab(tmp_path):
+    from tests import netns
+
+    why_not = netns.unavailable()
+    if why_not:
+        pytest.skip(f"network namespaces: {why_not}")
+    with netns.hosts(2) as net:
+        a, b = net.hosts
+        endpoint, base = f"tcp/{a.address}:7447", f"http://{a.address}:8080"
+        a_log, b_log = tmp_path / "host-a.log", tmp_path / "host-b.log"
+        a.popen(["sh", str(EXAMPLES / "hosts" / "host-a.sh"), "--no-view"], a_log, env=_env())
+        ready = _run(["twinmesh", "--connect", endpoint, "wait", "--timeout", "600"], timeout=660)
+        assert ready.returncode == 0, f"{ready.stderr}\n{a_log.read_text()[-3000:]}"
+        b.popen(["sh", str(EXAMPLES / "hosts" / "host-b.sh"), "--no-view"], b_log, env=_env(LAB_HOST=a.address))
+        station = {"belt-1", "infrared-1", "color-1", "light-1", "climate-1"}
+
+        def listed() -> list[str]:
+            names = _run(["twinmesh", "--connect", endpoint, "things"], timeout=60).stdout.split()
+            assert station | {"light-left", "light-right"} <= set(names), f"{names}\n{b_log.read_text()[-2000:]}"
+            return names
+
+        names = eventually(listed, timeout=600, what="host B's station listed by host A's lab")
+        assert names == sorted(names)
+        def read() -> float | None:
+            r = httpx.get(f"{base}/climate-1/properties/temperature", timeout=10)
+            return r.json() if r.status_code == 200 else None
+
+        temperature = eventually(read, timeout=120, what="host B's climate sensor read through host A's adapter")
+        assert isinstance(temperature, (int, float))
