@@ -123,7 +123,10 @@ def test_the_belt_speed_input_shows_the_belts_speed_and_setting_it_changes_the_b
         expect(belt.locator("pre.answer[data-property=speed]")).to_contain_text("204")
         assert http.get("/conveyor-belt-1/properties/speed").json() == 40
         expect(belt.locator("output[data-property=speed]")).to_have_text("40", timeout=LIVE)
-        http.put("/conveyor-belt-1/properties/speed", json=100).raise_for_status()
+        http.put("/conveyor-belt-1/properties/speed", json=100).raise_for_status()  # by someone else
+        # speed is not observable: a card on screen reads it again (every few seconds), and the input follows
+        expect(belt.locator("output[data-property=speed]")).to_have_text("100", timeout=10_000)
+        expect(form.locator("input[name=speed]")).to_have_value("100")
 
 
 def test_inputs_start_from_the_things_state_and_follow_it_until_edited(lab, page):
