@@ -26,10 +26,17 @@ import mesh.urdf_resources
 import mesh.wot
 from mesh.messages.scene_description import TwinDescription
 from mesh.urdf_resources import MESH_FILENAME, resolve_uri
+from tdgen.robot.cores import user_cache
 
 DONE = "done"  # written last: an entry without it is not one
 # what a workspace's numbers come from, besides our code
 LIBRARIES = ("pybullet", "numpy", "scipy", "trimesh", "msgspec")
+
+
+def artefacts_dir() -> Path:
+    """`$TWINMESH_CACHE/tdgen`, else tdgen's folder in the user's cache directory (`$XDG_CACHE_HOME/twinmesh/tdgen`
+    on Linux, by default `~/.cache/twinmesh/tdgen`), beside the compiled code (`cores.user_cache`)."""
+    return user_cache() / "tdgen"
 
 
 def _code_roots() -> list[Path]:

@@ -30,7 +30,6 @@ way: its temporary directory is left behind, never a half-written cache entry.
 from __future__ import annotations
 
 import logging
-import os
 import queue
 import threading
 import time
@@ -50,7 +49,7 @@ from mesh.wot import units
 from mesh.wot.problem import NotFound, Problem, TimedOut, Unavailable
 from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
 from tdgen.artefacts import artefact_key, live_artefacts, make_artefacts, user_errors, write_entry
-from tdgen.cache import ArtefactCache
+from tdgen.cache import ArtefactCache, artefacts_dir
 from tdgen.following import Following, SceneFollower
 
 if TYPE_CHECKING:
@@ -76,9 +75,8 @@ WRITE_AFTER_S = 1.0  # a live update's entry is written this long after it is se
 
 
 def default_cache_dir() -> Path:
-    """`$TWINMESH_CACHE/tdgen`, or `~/.cache/twinmesh/tdgen`."""
-    root = os.environ.get("TWINMESH_CACHE")
-    return (Path(root).expanduser() if root else Path.home() / ".cache" / "twinmesh") / "tdgen"
+    """`$TWINMESH_CACHE/tdgen`, else in the user's cache directory (`tdgen.cache.artefacts_dir`)."""
+    return artefacts_dir()
 
 
 def service_td() -> ThingDescription:

@@ -25,6 +25,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
+import platformdirs
+
 ROLES = ("router", "service", "consumer")
 DEVICE = "device"
 CN_PREFIX = "twinmesh-"
@@ -32,12 +34,12 @@ VALID_DAYS = 3650
 
 
 def default_secrets_dir() -> Path:
-    """`$TWINMESH_SECRETS`, else `~/.local/share/twinmesh/secrets` (where commands on this account look)."""
+    """`$TWINMESH_SECRETS`, else in the user's data directory (`$XDG_DATA_HOME/twinmesh/secrets` on Linux, by
+    default `~/.local/share/twinmesh/secrets`): where commands on this account look."""
     env = os.environ.get("TWINMESH_SECRETS")
     if env:
         return Path(env)
-    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
-    return Path(base) / "twinmesh" / "secrets"
+    return platformdirs.user_data_path("twinmesh") / "secrets"
 
 
 def common_name(role: str) -> str:

@@ -1,11 +1,88 @@
-"""One launch of parallel compiled code at a time in a process.
+"""Compiled code: one launch of parallel code at a time in a process, and where the compiled code is kept.
 
 numba's threading layers are not all safe for two threads launching parallel code at once (the
 workqueue layer aborts the process; omp is taken where GNU OpenMP is installed). Every `prange` loop
 here (the sphere model's verdicts, points.csv's formatting) runs under `LAUNCH`.
+
+numba keeps what it compiled beside the sources unless told otherwise: inside site-packages, which
+may be read-only and is not the user's. Our compiled code is kept in the user's cache directory
+instead (`user_cache`, beside tdgen's artefacts), so a machine compiles once whatever installed us.
+numba reads where when it is imported and each compiled function when it is defined, so every module
+of ours takes `njit` and `prange` from here: the one place that says where, before numba is imported.
 """
 from __future__ import annotations
 
+import os
+import sys
 import threading
+from pathlib import Path
+
+import platformdirs
 
 LAUNCH = threading.Lock()
+
+
+def user_cache() -> Path:
+    """`$TWINMESH_CACHE`, else twinmesh's folder in the user's cache directory (`$XDG_CACHE_HOME/twinmesh`,
+    by default `~/.cache/twinmesh`, on Linux; the platform's own elsewhere)."""
+    root = os.environ.get("TWINMESH_CACHE")
+    return Path(root).expanduser() if root else platformdirs.user_cache_path("twinmesh")
+
+
+def compiled_code_dir() -> Path:
+    """Where numba keeps the compiled code: `$NUMBA_CACHE_DIR` if the user set it, else `user_cache()/numba`."""
+    return Path(os.environ.get("NUMBA_CACHE_DIR") or user_cache() / "numba")
+
+
+def _keep_compiled_code() -> None:
+    """numba's cache in `compiled_code_dir()`, for this process and those it starts."""
+    os.environ["NUMBA_CACHE_DIR"] = str(compiled_code_dir())
+    if "numba" in sys.modules:  # imported before us (by a user's script): none of our functions defined yet
+        from numba.core import config
+
+        config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]  # type: ignore[attr-defined]
+
+
+_keep_compiled_code()
+
+from numba import njit, prange  # noqa: E402 - after the cache's place is set
+
+__all__ = ["LAUNCH", "compiled_code_dir", "njit", "prange", "user_cache"]
+
+
+COMPILED_MODULES = ("sphere_kernel.py", "points_csv.py", "kinematics.py")  # ours that numba compiles
+
+
+def compiled_stamp() -> Path:
+    """The file `fast_collision.compile_all` writes once it has compiled everything, named after what the
+    compiled code depends on (our compiled modules' sources, numba, Python, the machine), so that a new
+    version, or another machine sharing the home directory, compiles afresh."""
+    import hashlib
+    import platform
+    from importlib.metadata import version
+
+    h = hashlib.sha256(f"{version('numba')} {sys.version} {platform.machine()}".encode())
+    for name in COMPILED_MODULES:
+        h.update((Path(__file__).parent / name).read_bytes())
+    return compiled_code_dir() / f"twinmesh-compiled-{h.hexdigest()[:16]}"
+
+
+def compiled() -> bool:
+    """Is our compiled code on disk (a first call loads it in a fraction of a second instead of compiling it)?"""
+    return compiled_stamp().exists()
+
+
+_started = threading.Event()
+
+
+def compile_in_background() -> None:
+    """Compile everything (`fast_collision.compile_all`) in a process of its own, at most once per process;
+    it goes on if this process ends (a `twinmesh tdgen` that was done first) and does nothing if another
+    such process is at it."""
+    import subprocess
+
+    if _started.is_set():
+        return
+    _started.set()
+    subprocess.Popen([sys.executable, "-m", "tdgen.robot.fast_collision"], stdin=subprocess.DEVNULL,
+                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)

@@ -13,8 +13,8 @@ multiplier * source + offset, the source being a main joint or a column of `robo
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from tdgen.robot.cores import njit  # numba, its compiled code kept in the user's cache
 from tdgen.robot.model import Robot, UrdfJoint
 
 

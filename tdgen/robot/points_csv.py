@@ -13,9 +13,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numba import njit, prange
 
-from tdgen.robot.cores import LAUNCH
+from tdgen.robot.cores import LAUNCH, njit, prange
 
 if TYPE_CHECKING:
     from tdgen.robot.model import Robot
