@@ -12,6 +12,7 @@ serves on the mesh (what the tdgen service hands to robots).
 """
 from __future__ import annotations
 
+import logging
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -32,6 +33,8 @@ from tdgen.robot.surroundings import RobotPlacement, Surroundings, default_scene
 from tdgen.robot.workspace import WorkspaceError, alpha_shape, bounds, convex_hull, stl_bytes
 from tdgen.robot_td import policy, robot_td, served_td, slug, thing_model
 from tdgen.sampling import Samples, sample_workspace
+
+log = logging.getLogger(__name__)
 
 Frame = Literal["twin", "real"]
 Writer = Callable[[Path, "bytes | bytearray | points_csv.Flags"], None]  # an artefact's path, its content
@@ -224,7 +227,8 @@ def write_file(path: Path, content: bytes | bytearray | points_csv.Flags) -> Non
     path.write_bytes(content.data if isinstance(content, points_csv.Flags) else content)
 
 
-MOSTLY_COLLIDING = 0.5  # share of colliding samples above which a workspace is worth a warning
+MOSTLY_COLLIDING = 0.5  # share of colliding samples above which a workspace is worth a word (information)
+TAKEN_AWAY = 0.9        # share above which it is worth a warning: the scene leaves the arm little room, likely a mistake
 BY_DESIGN = 0.15        # share of all poses from which a pair of the robot's own links touching at rest overlaps by design
 PAIR_SAMPLES = 200      # colliding samples asked which links touch
 
@@ -259,15 +263,16 @@ def _hangs(robot: Robot) -> bool:
 
 def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, at_rest: list[str] | None = None,
                        pairs: list[list[str]] | None = None) -> list[str]:
-    """When most samples collide, say so and name the link pairs that collide most, and whether the
-    robot collides already at rest (joints at 0, within their limits): then the URDF's collision
-    meshes overlap by design, the usual cause. And whatever the share, a pair of the robot's own links
-    that touches at rest and collides in BY_DESIGN of all samples or more, or in any share when only
-    prismatic joints join the two (`Robot.slide_along`): parts that overlap by design (a telescoping arm's
-    nested tubes, as convex hulls), with the option that allows exactly each. A
-    pair that collides as often but not at rest is an arm folding into itself (a UR5's upper arm into
-    its base in 37 % of its poses): not said. `at_rest`:
-    `robot_at_rest(robot)`, if known; `pairs`: what collides in each of the first PAIR_SAMPLES
+    """When most samples collide and the robot collides already at rest (joints at 0, within their limits:
+    the URDF's collision meshes overlap by design, the usual cause), or nearly all collide (a scene that
+    leaves the robot little room), say so and name the link pairs that collide most; most colliding
+    otherwise is an arm among its scene's bodies, as designed: logged as information, not a warning.
+    And whatever the share, a pair of the robot's own links that touches at rest and collides in BY_DESIGN
+    of all samples or more, or in any share when only prismatic joints join the two (`Robot.slide_along`):
+    parts that overlap by design (a telescoping arm's nested tubes, as convex hulls), with the option that
+    allows exactly each. A pair that collides as often but not at rest is an arm folding into itself (a
+    UR5's upper arm into its base in 37 % of its poses): not said. `at_rest`: `robot_at_rest(robot)`, if
+    known; `pairs`: what collides in each of the first PAIR_SAMPLES
     colliding samples, if known (a live update's)."""
     share = float(samples.collision.mean()) if len(samples.collision) else 0.0
     if share < BY_DESIGN:
@@ -305,8 +310,12 @@ def _warnings(robot: Robot, scene: Surroundings, share: float, asked: int, count
         at_rest = robot_at_rest(robot, scene, world) if at_rest is None else at_rest
     if share > MOSTLY_COLLIDING:
         top = ", ".join(f"{pair} ({n * 100 // asked} %)" for pair, n in ranked[:5])
-        out.append(f"{share:.0%} of the samples collide (the workspace is made of the other {1 - share:.0%}); the "
-                   f"pairs that collide most: {top or 'none named'}")
+        said = (f"{share:.0%} of the samples collide (the workspace is made of the other {1 - share:.0%}); the "
+                f"pairs that collide most: {top or 'none named'}")
+        if at_rest or share > TAKEN_AWAY:  # likely a mistake: a warning
+            out.append(said + ("" if at_rest else "; the scene leaves the robot little room: is it placed as meant?"))
+        else:  # an arm among the bodies of its scene and folding into itself, as designed: information
+            log.info("%s: %s", robot.name, said)
         if at_rest:
             out.append(f"{robot.name} collides at rest (every joint at 0): {', '.join(at_rest)}; its collision "
                        "meshes overlap by design, which a tool like MoveIt's SRDF disables per pair")
