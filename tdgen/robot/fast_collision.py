@@ -15,15 +15,16 @@ import weakref
 
 import numpy as np
 
+from tdgen.robot import sphere_kernel as kernel
 from tdgen.robot.collision import CollisionWorld
-from tdgen.robot.cores import LAUNCH
+from tdgen.robot.cores import LAUNCH, compiled_code_dir, compiled_stamp
 from tdgen.robot.link_frames import LinkFrames
 from tdgen.robot.model import Robot
+from tdgen.robot.sphere_kernel import COLLIDES, FREE, UNSURE
 from tdgen.robot.spheres import PAD, SURE_DEPTH, Convex, cover, link_elements, outer_planes, scene_elements, within
 
-FREE, COLLIDES, UNSURE = 0, 1, 2
+__all__ = ["COLLIDES", "FREE", "UNSURE", "FastCollision", "SphereModel"]
 CHUNK = 65536
-NO_PASSIVE = np.zeros(0)
 
 
 def _stacked(arrays: list[np.ndarray], trailing: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
@@ -103,7 +104,8 @@ class SphereModel:
         allowed = np.ones((len(links), len(items)), dtype=bool)
         for link, other in world._allowed_bodies:
             allowed[slot_of[link], element_body == other] = False
-        self._tables = {**robot_tables, **self._scene_tables([e for _, e in items]), "touches": allowed}
+        scene_tables = self._scene_tables([e for _, e in items])
+        self.tables: kernel.Tables = kernel.as_tables({**robot_tables, **scene_tables, "touches": allowed})
 
     @classmethod
     def robot_part(cls, world: CollisionWorld) -> tuple[LinkFrames, set[int], dict[str, np.ndarray], dict[int, int]]:
@@ -245,10 +247,8 @@ class SphereModel:
 
     def _loop(self, values: np.ndarray, slot: int, tips: np.ndarray) -> np.ndarray:
         """The compiled loop over one chunk, on all cores (one launch at a time in a process)."""
-        from tdgen.robot import sphere_kernel
-
         with LAUNCH:
-            return sphere_kernel.verdicts(values, *self._args, slot, tips)  # type: ignore[call-arg]
+            return kernel.verdicts(values, self.tables, PAD, SURE_DEPTH, slot, tips)
 
     def verdicts_here(self, q: np.ndarray, grow: np.ndarray | None = None) -> np.ndarray:
         """`verdicts` on this thread, without the cores' start-up: for a few dozen states (a segment).
@@ -257,37 +257,21 @@ class SphereModel:
         every configuration whose links lie within that of their place here, and pairs of links within that
         of where they stand to each other (the stretch of a segment around it); COLLIDES and UNSURE speak of
         the state."""
-        from tdgen.robot import sphere_kernel
-
-        q = np.atleast_2d(np.asarray(q, dtype=float))
+        q = np.ascontiguousarray(np.atleast_2d(q), dtype=float)
         robot = self.frames.robot
-        passive = np.atleast_2d(robot.passive(q)) if robot.passive is not None else np.zeros((len(q), 0))
+        passive = np.ascontiguousarray(np.atleast_2d(robot.passive(q)) if robot.passive is not None
+                                       else np.zeros((len(q), 0)), dtype=float)
         grow = self._still if grow is None else np.asarray(grow, dtype=float)
-        return sphere_kernel.verdicts_packed(q, passive, *self._packed, PAD, SURE_DEPTH, grow)  # type: ignore[call-arg]
+        return kernel.verdicts_packed(q, passive, *self._packed, PAD, SURE_DEPTH, grow)  # type: ignore[call-arg]
 
     @functools.cached_property
     def _packed(self) -> tuple:
         """The joint-value maps and the tables packed in three arrays: the one-thread loops' arguments."""
-        from tdgen.robot import sphere_kernel
-
-        return (*self.frames.value_maps(), *sphere_kernel.pack(self._tables))
+        return (*self.frames.value_maps(), *kernel.pack(self.tables))
 
     def verdict(self, q: np.ndarray) -> int:
         """One configuration (n,) SI -> FREE, COLLIDES or UNSURE, on this thread (a planner's hot path)."""
-        from tdgen.robot import sphere_kernel
-
-        q = np.asarray(q, dtype=float)
-        robot = self.frames.robot
-        passive = np.atleast_2d(robot.passive(q[None]))[0] if robot.passive is not None else NO_PASSIVE
-        return int(sphere_kernel.verdict_packed(q, passive, *self._packed, PAD, SURE_DEPTH,  # type: ignore[call-arg]
-                                                self._still))
-
-    @functools.cached_property
-    def _args(self) -> tuple:
-        """The tables in the order the parallel loop takes them (`sphere_kernel.TABLES`), then the margins."""
-        from tdgen.robot import sphere_kernel
-
-        return tuple(self._tables[name] for name in sphere_kernel.TABLES), PAD, SURE_DEPTH
+        return int(self.verdicts_here(np.asarray(q, dtype=float)[None])[0])
 
 
 class FastCollision:
@@ -368,7 +352,7 @@ class FastCollision:
         (`CollisionWorld.link_sweep_radii`); the order of `covering`'s `grow`."""
         slot_of = self.spheres.slot_of
         link_of = {slot: link for link, slot in slot_of.items()}
-        pairs = [(link_of[int(a)], link_of[int(b)]) for a, b in self.spheres._tables["pairs"]]
+        pairs = [(link_of[int(a)], link_of[int(b)]) for a, b in self.spheres.tables.pairs]
         per_link, per_pair = self.world.link_sweep_radii(pairs)
         out = np.zeros((len(per_link), len(slot_of)))
         for link, slot in slot_of.items():
@@ -377,3 +361,38 @@ class FastCollision:
 
     def close(self) -> None:
         self.world.close()
+
+
+def compile_all() -> None:
+    """Compile (or load) every compiled function a lab runs, on a UR10 in table-and-wall (one specialisation
+    serves every robot and scene: `sphere_kernel.as_tables`), then write `cores.compiled_stamp()`. Another
+    process already at it (a lock on the stamp's folder): nothing to do."""
+    import fcntl
+
+    from tdgen.robot import points_csv
+    from tdgen.robot.kinematics import ForwardKinematics
+    from tdgen.robot.surroundings import load_scene
+
+    folder = compiled_code_dir()
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / "twinmesh-compiling.lock", "w") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return
+        robot = Robot.load("ur10.urdf")
+        world = CollisionWorld(robot, load_scene("table-and-wall"))
+        try:
+            fast = FastCollision(world, warm=True)  # the one-thread loop
+            q = np.random.default_rng(0).uniform(robot.lows(), robot.highs(), (64, len(robot.joints)))
+            verdict, tips = fast.spheres.verdicts_and_tips(q, robot.ee_link)  # the loop on all cores
+            fast.spheres.frames.positions(q, robot.ee_link)  # the tips alone (the exact model's points)
+            points_csv.encode(robot, tips * 1000.0, verdict == COLLIDES, q)
+            ForwardKinematics(robot).positions(q[0])
+        finally:
+            world.close()
+        compiled_stamp().touch()
+
+
+if __name__ == "__main__":  # `cores.compile_in_background`
+    compile_all()

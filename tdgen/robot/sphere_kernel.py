@@ -2,14 +2,22 @@
 
 numpy would hold N x sphere-pairs arrays and walk memory several times per test; this loop keeps
 one configuration's link frames and spheres in a few hundred numbers (allocated once per block of
-configurations) and stops at the first sure answer. Compiled once per machine (numba caches it
-beside this file, or in NUMBA_CACHE_DIR). Verdicts: 0 free, 1 colliding, 2 unsure (for the exact
-test). See `fast_collision` for the model.
+configurations) and stops at the first sure answer. Compiled once per machine and kept in the
+user's cache directory (`cores`). The model's tables travel as one `Tables`
+value, each table named once there; a verdict is FREE, COLLIDES or UNSURE (for the exact test).
+See `fast_collision` for the model.
 """
 from __future__ import annotations
 
+from typing import Annotated, NamedTuple, get_type_hints
+
 import numpy as np
-from numba import njit, prange
+import numpy.typing as npt
+
+from tdgen.robot.cores import njit, prange
+
+# verdicts; numba compiles module-level numbers in as constants
+FREE, COLLIDES, UNSURE = 0, 1, 2
 
 BLOCKS = 64  # blocks of configurations the cores share
 # reordered and fused arithmetic (a fifth faster); never the flags that assume no infinities (the loops start
@@ -151,187 +159,319 @@ def _sphere_in(centres, i, radius, planes, n_planes, depth):
     return True
 
 
+# How `pack` stores each table: f float, i int; the number: its dimensions.
+F1 = Annotated[npt.NDArray[np.float64], "f1"]
+F2 = Annotated[npt.NDArray[np.float64], "f2"]
+F3 = Annotated[npt.NDArray[np.float64], "f3"]
+I1 = Annotated[npt.NDArray[np.int64], "i1"]
+I2 = Annotated[npt.NDArray[np.int64], "i2"]
+
+
+class Tables(NamedTuple):
+    """The model's tables (`fast_collision.SphereModel`), one value: numba passes it whole and the kernel
+    reads each table by name. Link slots first (k), then hulls (h), scene elements (e), self pairs (p)."""
+
+    parent: I1             # k -> the slot of its parent link
+    origin_r: F3           # k -> its joint's origin in the parent's frame: rotation, position
+    origin_p: F2
+    kind: I1               # k -> 0 fixed, 1 turning, 2 sliding
+    axis: F2
+    base_r: F2             # the robot's base in the world
+    base_p: F1
+    outer_c: F3            # k, i -> spheres around the link (centre in its frame, radius), how many
+    outer_r: F2
+    outer_n: I1
+    inner_c: F3            # k, i -> spheres inside the link
+    inner_r: F2
+    inner_n: I1
+    bound_c: F2            # k -> one sphere around its outer spheres: the broad phase
+    bound_r: F1
+    hull_points: F3        # h -> corners of a convex element of a link (link frame), how many
+    hull_np: I1
+    hull_planes: F3        # h -> half-spaces around it, how many
+    hull_nj: I1
+    hull_c: F2             # h -> a sphere around it
+    hull_r: F1
+    link_hulls: I2         # k, x -> its hulls, how many
+    link_nh: I1
+    hull_in: F3            # h -> points surely inside it, how many
+    hull_in_n: I1
+    hull_in_planes: F3     # h -> half-spaces inside it, how many
+    hull_in_nj: I1
+    pairs: I2              # p -> the two link slots the exact test checks against each other
+    scene_links: I1        # k -> tested against the scene
+    el_outer: F3           # e -> half-spaces around a scene element (world frame), how many
+    el_outer_n: I1
+    el_inner: F3           # e -> half-spaces inside it, how many
+    el_inner_n: I1
+    el_c: F2               # e -> a sphere around it
+    el_r: F1
+    touches: I2            # k, e -> does the exact test check this link against this element
+    group_c: F2            # elements grouped by place: each group's sphere, its members
+    group_r: F1
+    group_start: I1
+    group_members: I1
+    fine_points: F3        # h -> a mesh hull's own corners and faces behind a k-DOP (`coarse`)
+    fine_np: I1
+    fine_planes: F3
+    fine_nj: I1
+    coarse: I1
+    el_points: F3          # e -> its corners, how many
+    el_np: I1
+    el_in: F3              # e -> points surely inside it, how many
+    el_in_n: I1
+
+
+KINDS = tuple(hint.__metadata__[0] for hint in get_type_hints(Tables, include_extras=True).values())
+
+
+class Scratch(NamedTuple):
+    """One core's working arrays for one configuration at a time."""
+
+    rot: np.ndarray    # (links, 3, 3) link frames in the world
+    pos: np.ndarray    # (links, 3)
+    tmp: np.ndarray    # (3, 3)
+    ow: np.ndarray     # (links, outer, 3) outer spheres in the world
+    iw: np.ndarray     # (links, inner, 3) inner spheres in the world
+    bw: np.ndarray     # (links, 3) bounding spheres in the world
+    hw: np.ndarray     # (2, 3) two hulls' centres in the world
+    eye: np.ndarray    # the world's frame
+    zero: np.ndarray
+    moved: np.ndarray  # (links,) spheres already in the world for this configuration
+
+
 @njit(cache=True, inline="always", fastmath=FAST)
-def _spheres(rot, pos, k, outer_c, outer_n, inner_c, inner_n, ow, iw, moved):
+def _scratch(t):
+    count, outer, inner = t.parent.shape[0], t.outer_c.shape[1], t.inner_c.shape[1]
+    return Scratch(np.empty((count, 3, 3)), np.empty((count, 3)), np.empty((3, 3)), np.empty((count, outer, 3)),
+                   np.empty((count, inner, 3)), np.empty((count, 3)), np.empty((2, 3)), np.eye(3), np.zeros(3),
+                   np.zeros(count, dtype=np.bool_))
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _spheres(t, s, k):
     """Link k's spheres in the world, once per configuration and only for links a broad phase let through."""
-    if moved[k]:
+    if s.moved[k]:
         return
-    moved[k] = True
-    for i in range(outer_n[k]):
-        _move(rot, pos, k, outer_c[k, i], ow[k], i)
-    for i in range(inner_n[k]):
-        _move(rot, pos, k, inner_c[k, i], iw[k], i)
+    s.moved[k] = True
+    for i in range(t.outer_n[k]):
+        _move(s.rot, s.pos, k, t.outer_c[k, i], s.ow[k], i)
+    for i in range(t.inner_n[k]):
+        _move(s.rot, s.pos, k, t.inner_c[k, i], s.iw[k], i)
 
 
 @njit(cache=True, inline="always", fastmath=FAST)
-def _one(values, tables, pad, sure_depth, grow, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved):
-    """One configuration's verdict; `tables` in the order of TABLES (a tuple: a call of fifty arguments
-    compiles to a call with *args, which numba cannot inline).
+def _place(values, t, s):
+    """The forward kinematics: every link's frame and bounding sphere in the world; no sphere moved yet."""
+    _frames(values, t.parent, t.origin_r, t.origin_p, t.kind, t.axis, t.base_r, t.base_p, s.rot, s.pos, s.tmp)
+    for k in range(t.parent.shape[0]):
+        _move(s.rot, s.pos, k, t.bound_c[k], s.bw, k)
+        s.moved[k] = False
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _one(values, t, s, pad, sure_depth, grow):
+    """One configuration's verdict.
 
     `grow` (m, per link slot, then per self pair): each link's shapes taken that much larger in every proof
     that it is apart from the scene, each pair's in every proof that its two links are apart; none in the
     proofs that things collide. FREE then holds for every configuration whose links' points lie within their
     `grow` of these, and pairs' within theirs of each other (a stretch of a segment around a checked state);
     COLLIDES still speaks of this one."""
-    (parent, origin_r, origin_p, kind, axis, base_r, base_p,
-     outer_c, outer_r, outer_n, inner_c, inner_r, inner_n, bound_c, bound_r,
-     hull_points, hull_np, hull_planes, hull_nj, hull_c, hull_r, link_hulls, link_nh,
-     hull_in, hull_in_n, hull_in_planes, hull_in_nj,
-     pairs, scene_links, el_outer, el_outer_n, el_inner, el_inner_n, el_c, el_r, touches,
-     group_c, group_r, group_start, group_members, fine_points, fine_np, fine_planes, fine_nj, coarse,
-     el_points, el_np, el_in, el_in_n) = tables
-    count = parent.shape[0]
-    _frames(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, rot, pos, tmp)
-    for k in range(count):
-        _move(rot, pos, k, bound_c[k], bw, k)
-        moved[k] = False
-    maybe = False
-    # the robot with the scene first: most colliding samples touch a body (a table), found out here
-    for k in range(count):
-        if not scene_links[k]:
-            continue
-        for g in range(group_c.shape[0]):
-            if _dist2(bw, k, group_c, g) >= (bound_r[k] + grow[k] + group_r[g]) ** 2:
-                continue
-            for m in range(group_start[g], group_start[g + 1]):
-                e = group_members[m]
-                if not touches[k, e]:
-                    continue
-                if _dist2(bw, k, el_c, e) >= (bound_r[k] + grow[k] + el_r[e]) ** 2:
-                    continue
-                _spheres(rot, pos, k, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
-                # outer spheres (around the link) that reach no face of the element: the two are apart, and the
-                # tests of a sure collision below (shapes inside the link) need not run
-                touch = False
-                for i in range(outer_n[k]):
-                    deepest = -np.inf
-                    for j in range(el_outer_n[e]):
-                        f = ow[k, i, 0] * el_outer[e, j, 0] + ow[k, i, 1] * el_outer[e, j, 1] \
-                            + ow[k, i, 2] * el_outer[e, j, 2] - el_outer[e, j, 3]
-                        if f > deepest:
-                            deepest = f
-                    if deepest < outer_r[k, i] + grow[k]:
-                        touch = True
-                        break
-                if not touch:
-                    continue
-                if el_inner_n[e] > 0:
-                    for i in range(inner_n[k]):
-                        if inner_r[k, i] <= sure_depth:
-                            continue
-                        if _sphere_in(iw[k], i, inner_r[k, i], el_inner[e], el_inner_n[e], sure_depth):
-                            return 1
-                    for x in range(link_nh[k]):
-                        h = link_hulls[k, x]
-                        if _deep_inside(hull_in[h], hull_in_n[h], rot, pos, k, el_inner[e], el_inner_n[e], eye, zero,
-                                        sure_depth):
-                            return 1
-                        # the other way round: a point surely in the element (a box's corner) deep inside the link
-                        if _world_inside(el_in[e], el_in_n[e], hull_in_planes[h], hull_in_nj[h], rot[k], pos[k],
-                                         sure_depth):
-                            return 1
-                if maybe:
-                    continue
-                if link_nh[k] == 0:
-                    maybe = True
-                    continue
-                for x in range(link_nh[k]):
-                    h = link_hulls[k, x]
-                    if _beyond(el_outer[e], el_outer_n[e], eye, zero, hull_points[h], hull_np[h], rot[k], pos[k],
-                               pad + grow[k]):
-                        continue
-                    if coarse[h] and _beyond(el_outer[e], el_outer_n[e], eye, zero, fine_points[h], fine_np[h], rot[k],
-                                             pos[k], pad + grow[k]):
-                        continue
-                    # the other way round: the element's corners beyond a face of the link's hull
-                    if _beyond(hull_planes[h], hull_nj[h], rot[k], pos[k], el_points[e], el_np[e], eye, zero,
-                               pad + grow[k]):
-                        continue
-                    if coarse[h] and _beyond(fine_planes[h], fine_nj[h], rot[k], pos[k], el_points[e], el_np[e], eye,
-                                             zero, pad + grow[k]):
-                        continue
-                    maybe = True
-                    break
-    # the robot with itself
-    for p in range(pairs.shape[0]):
-        a, b = pairs[p, 0], pairs[p, 1]
-        if _dist2(bw, a, bw, b) >= (bound_r[a] + bound_r[b] + grow[count + p]) ** 2:
-            continue
-        _spheres(rot, pos, a, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
-        _spheres(rot, pos, b, outer_c, outer_n, inner_c, inner_n, ow, iw, moved)
-        touch = False  # no outer spheres touch: apart, and no sure collision to look for inside
-        for i in range(outer_n[a]):
-            reach = outer_r[a, i] + bound_r[b] + grow[count + p]
-            if _dist2(ow[a], i, bw, b) >= reach * reach:
-                continue
-            for j in range(outer_n[b]):
-                reach = outer_r[a, i] + outer_r[b, j] + grow[count + p]
-                if _dist2(ow[a], i, ow[b], j) < reach * reach:
-                    touch = True
-                    break
-            if touch:
-                break
-        if not touch:
-            continue
-        # a sphere of a that does not reach b's bounding sphere (deep enough) meets none of b's: skip its row
-        for i in range(inner_n[a]):
-            reach = inner_r[a, i] + bound_r[b] - sure_depth
-            if reach <= 0 or _dist2(iw[a], i, bw, b) >= reach * reach:
-                continue
-            for j in range(inner_n[b]):
-                reach = inner_r[a, i] + inner_r[b, j] - sure_depth
-                if reach > 0 and _dist2(iw[a], i, iw[b], j) < reach * reach:
-                    return 1
-        if link_nh[a] == 0 or link_nh[b] == 0:
-            maybe = True
-            continue
-        for x in range(link_nh[a]):
-            ha = link_hulls[a, x]
-            _move(rot, pos, a, hull_c[ha], hw, 0)
-            for y in range(link_nh[b]):
-                hb = link_hulls[b, y]
-                _move(rot, pos, b, hull_c[hb], hw, 1)
-                apart = pad + grow[count + p]
-                if _dist2(hw, 0, hw, 1) >= (hull_r[ha] + hull_r[hb] + apart) ** 2:
-                    continue
-                if _deep_inside(hull_in[ha], hull_in_n[ha], rot, pos, a, hull_in_planes[hb], hull_in_nj[hb],
-                                rot[b], pos[b], sure_depth) or \
-                        _deep_inside(hull_in[hb], hull_in_n[hb], rot, pos, b, hull_in_planes[ha], hull_in_nj[ha],
-                                     rot[a], pos[a], sure_depth):
-                    return 1
-                if maybe:
-                    continue
-                if _beyond(hull_planes[ha], hull_nj[ha], rot[a], pos[a], hull_points[hb], hull_np[hb], rot[b], pos[b],
-                           apart):
-                    continue
-                if _beyond(hull_planes[hb], hull_nj[hb], rot[b], pos[b], hull_points[ha], hull_np[ha], rot[a], pos[a],
-                           apart):
-                    continue
-                if (coarse[ha] or coarse[hb]) and (  # a k-DOP could not tell: the meshes' own hulls
-                        _beyond(fine_planes[ha], fine_nj[ha], rot[a], pos[a], fine_points[hb], fine_np[hb], rot[b],
-                                pos[b], apart)
-                        or _beyond(fine_planes[hb], fine_nj[hb], rot[b], pos[b], fine_points[ha], fine_np[ha], rot[a],
-                                   pos[a], apart)):
-                    continue
-                maybe = True
-    return 2 if maybe else 0
+    _place(values, t, s)
+    verdict = _with_scene(t, s, pad, sure_depth, grow)
+    if verdict == COLLIDES:
+        return COLLIDES
+    return _with_itself(t, s, pad, sure_depth, grow, verdict == UNSURE)
 
 
 @njit(cache=True, inline="always", fastmath=FAST)
-def _scratch(tables):
-    """One core's working arrays for `_one`: link frames, spheres in the world, a few vectors."""
-    count, outer, inner = tables[0].shape[0], tables[7].shape[1], tables[10].shape[1]
-    return (np.empty((count, 3, 3)), np.empty((count, 3)), np.empty((3, 3)), np.empty((count, outer, 3)),
-            np.empty((count, inner, 3)), np.empty((count, 3)), np.empty((2, 3)), np.eye(3), np.zeros(3),
-            np.zeros(count, dtype=np.bool_))
+def _with_scene(t, s, pad, sure_depth, grow):
+    """The robot with the scene, first: most colliding samples touch a body (a table), found out here.
+    Elements far from a link (group by group, then one by one) are skipped."""
+    verdict = FREE
+    for k in range(t.parent.shape[0]):
+        if not t.scene_links[k]:
+            continue
+        for g in range(t.group_c.shape[0]):
+            if _dist2(s.bw, k, t.group_c, g) >= (t.bound_r[k] + grow[k] + t.group_r[g]) ** 2:
+                continue
+            for m in range(t.group_start[g], t.group_start[g + 1]):
+                e = t.group_members[m]
+                if not t.touches[k, e] or _dist2(s.bw, k, t.el_c, e) >= (t.bound_r[k] + grow[k] + t.el_r[e]) ** 2:
+                    continue
+                found = _link_with_element(t, s, k, e, pad, sure_depth, grow[k], verdict == UNSURE)
+                if found == COLLIDES:
+                    return COLLIDES
+                if found == UNSURE:
+                    verdict = UNSURE
+    return verdict
 
 
-@njit(cache=True, fastmath=FAST)
-def verdict_one(values, tables, pad, sure_depth, grow):
-    """One configuration's verdict without the threads' start-up: a planner's state check. `tables`: the
-    model's tables in the order of TABLES."""
-    rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved = _scratch(tables)
-    return _one(values, tables, pad, sure_depth, grow, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
+@njit(cache=True, inline="always", fastmath=FAST)
+def _link_with_element(t, s, k, e, pad, sure_depth, grow, unsure):
+    """Link k with scene element e. `unsure`: the configuration is already UNSURE, so only a sure
+    collision is worth looking for."""
+    _spheres(t, s, k)
+    if not _outer_reach_element(t, s, k, e, grow):
+        return FREE  # apart, and no sure collision to look for inside
+    if t.el_inner_n[e] > 0 and _deep_in_element(t, s, k, e, sure_depth):
+        return COLLIDES
+    if unsure or not _apart_from_element(t, s, k, e, pad + grow):
+        return UNSURE
+    return FREE
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _outer_reach_element(t, s, k, e, grow):
+    """Does an outer sphere of link k reach every face's plane of element e (grown by `grow`)?"""
+    for i in range(t.outer_n[k]):
+        deepest = -np.inf
+        for j in range(t.el_outer_n[e]):
+            f = s.ow[k, i, 0] * t.el_outer[e, j, 0] + s.ow[k, i, 1] * t.el_outer[e, j, 1] \
+                + s.ow[k, i, 2] * t.el_outer[e, j, 2] - t.el_outer[e, j, 3]
+            if f > deepest:
+                deepest = f
+        if deepest < t.outer_r[k, i] + grow:
+            return True
+    return False
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _deep_in_element(t, s, k, e, sure_depth):
+    """A sure collision of link k with element e: an inner sphere, or a point surely in a hull of the link,
+    deep inside the element; or a point surely in the element (a box's corner) deep inside the link."""
+    for i in range(t.inner_n[k]):
+        if t.inner_r[k, i] > sure_depth and _sphere_in(s.iw[k], i, t.inner_r[k, i], t.el_inner[e], t.el_inner_n[e],
+                                                       sure_depth):
+            return True
+    for x in range(t.link_nh[k]):
+        h = t.link_hulls[k, x]
+        if _deep_inside(t.hull_in[h], t.hull_in_n[h], s.rot, s.pos, k, t.el_inner[e], t.el_inner_n[e], s.eye, s.zero,
+                        sure_depth):
+            return True
+        if _world_inside(t.el_in[e], t.el_in_n[e], t.hull_in_planes[h], t.hull_in_nj[h], s.rot[k], s.pos[k],
+                         sure_depth):
+            return True
+    return False
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _apart_from_element(t, s, k, e, apart):
+    """Every hull of link k apart from element e by more than `apart`: a face of one with all corners of the
+    other beyond it (a k-DOP that cannot tell: the mesh's own hull). A link without hulls: not proven."""
+    if t.link_nh[k] == 0:
+        return False
+    for x in range(t.link_nh[k]):
+        h = t.link_hulls[k, x]
+        rot, pos = s.rot[k], s.pos[k]
+        if _beyond(t.el_outer[e], t.el_outer_n[e], s.eye, s.zero, t.hull_points[h], t.hull_np[h], rot, pos, apart):
+            continue
+        if t.coarse[h] and _beyond(t.el_outer[e], t.el_outer_n[e], s.eye, s.zero, t.fine_points[h], t.fine_np[h],
+                                   rot, pos, apart):
+            continue
+        # the other way round: the element's corners beyond a face of the link's hull
+        if _beyond(t.hull_planes[h], t.hull_nj[h], rot, pos, t.el_points[e], t.el_np[e], s.eye, s.zero, apart):
+            continue
+        if t.coarse[h] and _beyond(t.fine_planes[h], t.fine_nj[h], rot, pos, t.el_points[e], t.el_np[e], s.eye,
+                                   s.zero, apart):
+            continue
+        return False
+    return True
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _with_itself(t, s, pad, sure_depth, grow, unsure):
+    """The robot with itself, pair by pair (pairs whose bounding spheres are apart skipped). `unsure`:
+    the scene left the configuration UNSURE."""
+    count = t.parent.shape[0]
+    for p in range(t.pairs.shape[0]):
+        a, b = t.pairs[p, 0], t.pairs[p, 1]
+        reach = grow[count + p]
+        if _dist2(s.bw, a, s.bw, b) >= (t.bound_r[a] + t.bound_r[b] + reach) ** 2:
+            continue
+        found = _pair(t, s, a, b, pad, sure_depth, reach, unsure)
+        if found == COLLIDES:
+            return COLLIDES
+        if found == UNSURE:
+            unsure = True
+    return UNSURE if unsure else FREE
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _pair(t, s, a, b, pad, sure_depth, grow, unsure):
+    """Links a and b; `unsure` as in `_link_with_element`."""
+    _spheres(t, s, a)
+    _spheres(t, s, b)
+    if not _outer_spheres_touch(t, s, a, b, grow):
+        return FREE  # apart, and no sure collision to look for inside
+    if _inner_spheres_overlap(t, s, a, b, sure_depth):
+        return COLLIDES
+    if t.link_nh[a] == 0 or t.link_nh[b] == 0:
+        return UNSURE
+    return _hull_pairs(t, s, a, b, pad + grow, sure_depth, unsure)
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _outer_spheres_touch(t, s, a, b, grow):
+    for i in range(t.outer_n[a]):
+        reach = t.outer_r[a, i] + t.bound_r[b] + grow
+        if _dist2(s.ow[a], i, s.bw, b) >= reach * reach:
+            continue
+        for j in range(t.outer_n[b]):
+            reach = t.outer_r[a, i] + t.outer_r[b, j] + grow
+            if _dist2(s.ow[a], i, s.ow[b], j) < reach * reach:
+                return True
+    return False
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _inner_spheres_overlap(t, s, a, b, sure_depth):
+    """An inner sphere of a and one of b overlapping by more than `sure_depth`; a sphere of a that does not
+    reach b's bounding sphere (deep enough) meets none of b's: its row is skipped."""
+    for i in range(t.inner_n[a]):
+        reach = t.inner_r[a, i] + t.bound_r[b] - sure_depth
+        if reach <= 0 or _dist2(s.iw[a], i, s.bw, b) >= reach * reach:
+            continue
+        for j in range(t.inner_n[b]):
+            reach = t.inner_r[a, i] + t.inner_r[b, j] - sure_depth
+            if reach > 0 and _dist2(s.iw[a], i, s.iw[b], j) < reach * reach:
+                return True
+    return False
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _hull_pairs(t, s, a, b, apart, sure_depth, unsure):
+    """Every hull of a with every hull of b: COLLIDES as soon as a point surely in one lies deep in the
+    other; else UNSURE if a pair is not proven apart (a face of one with the other's corners beyond it)."""
+    for x in range(t.link_nh[a]):
+        ha = t.link_hulls[a, x]
+        _move(s.rot, s.pos, a, t.hull_c[ha], s.hw, 0)
+        for y in range(t.link_nh[b]):
+            hb = t.link_hulls[b, y]
+            _move(s.rot, s.pos, b, t.hull_c[hb], s.hw, 1)
+            if _dist2(s.hw, 0, s.hw, 1) >= (t.hull_r[ha] + t.hull_r[hb] + apart) ** 2:
+                continue
+            if _deep_inside(t.hull_in[ha], t.hull_in_n[ha], s.rot, s.pos, a, t.hull_in_planes[hb], t.hull_in_nj[hb],
+                            s.rot[b], s.pos[b], sure_depth) or \
+                    _deep_inside(t.hull_in[hb], t.hull_in_n[hb], s.rot, s.pos, b, t.hull_in_planes[ha],
+                                 t.hull_in_nj[ha], s.rot[a], s.pos[a], sure_depth):
+                return COLLIDES
+            if not unsure and not _hulls_apart(t, s, a, b, ha, hb, apart):
+                unsure = True
+    return UNSURE if unsure else FREE
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _hulls_apart(t, s, a, b, ha, hb, apart):
+    ra, pa, rb, pb = s.rot[a], s.pos[a], s.rot[b], s.pos[b]
+    if _beyond(t.hull_planes[ha], t.hull_nj[ha], ra, pa, t.hull_points[hb], t.hull_np[hb], rb, pb, apart) or \
+            _beyond(t.hull_planes[hb], t.hull_nj[hb], rb, pb, t.hull_points[ha], t.hull_np[ha], ra, pa, apart):
+        return True
+    if t.coarse[ha] or t.coarse[hb]:  # a k-DOP could not tell: the meshes' own hulls
+        return _beyond(t.fine_planes[ha], t.fine_nj[ha], ra, pa, t.fine_points[hb], t.fine_np[hb], rb, pb, apart) \
+            or _beyond(t.fine_planes[hb], t.fine_nj[hb], rb, pb, t.fine_points[ha], t.fine_np[ha], ra, pa, apart)
+    return False
 
 
 @njit(cache=True, parallel=True, fastmath=FAST)
@@ -352,26 +492,26 @@ def tips(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, tip):
 
 
 @njit(cache=True, fastmath=FAST)
-def _block(lo, hi, values, tables, pad, sure_depth, tip, tips_out, out):
+def _block(lo, hi, values, t, pad, sure_depth, tip, tips_out, out):
     """Configurations lo..hi on one core: one call per block, the model inlined (a call per configuration
     passed fifty arrays, counting references to each: a third of the time of a configuration far from
     everything)."""
-    rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved = _scratch(tables)
-    still = np.zeros(tables[0].shape[0] + tables[27].shape[0])  # no growth: links, then self pairs
-    for s in range(lo, hi):
-        out[s] = _one(values[s], tables, pad, sure_depth, still, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
+    s = _scratch(t)
+    still = np.zeros(t.parent.shape[0] + t.pairs.shape[0])  # no growth: links, then self pairs
+    for c in range(lo, hi):
+        out[c] = _one(values[c], t, s, pad, sure_depth, still)
         if tip >= 0:  # the tip's position from the same frames: the sampled points
-            tips_out[s] = pos[tip]
+            tips_out[c] = s.pos[tip]
 
 
 @njit(cache=True, parallel=True, nogil=True, fastmath=FAST)
-def verdicts(values, tables, pad, sure_depth, tip, tips_out):
+def verdicts(values, t, pad, sure_depth, tip, tips_out):
     """(N, m) joint values -> (N,) verdicts on all cores; with `tip` >= 0, that link's origins into tips_out."""
     n = values.shape[0]
     out = np.zeros(n, dtype=np.int8)
     per_block = (n + BLOCKS - 1) // BLOCKS
     for block in prange(BLOCKS):
-        _block(block * per_block, min(n, (block + 1) * per_block), values, tables, pad, sure_depth, tip, tips_out, out)
+        _block(block * per_block, min(n, (block + 1) * per_block), values, t, pad, sure_depth, tip, tips_out, out)
     return out
 
 
@@ -401,28 +541,34 @@ def _i2(ints, meta, k):
     return ints[meta[k, 0]:meta[k, 0] + meta[k, 1] * meta[k, 2]].reshape((meta[k, 1], meta[k, 2]))
 
 
+def _unpacker():
+    """`_unpacked(floats, ints, meta) -> Tables`: views of `pack`'s arrays. Written from `KINDS` (numba
+    builds a tuple of arrays of different shapes only from code that names each), so a table added to
+    `Tables` is packed and unpacked with nothing else to change."""
+    views = ", ".join(f"_{kind}({'floats' if kind[0] == 'f' else 'ints'}, meta, {k})" for k, kind in enumerate(KINDS))
+    scope = {"Tables": Tables, "_f1": _f1, "_f2": _f2, "_f3": _f3, "_i1": _i1, "_i2": _i2}
+    exec(f"def _unpacked(floats, ints, meta):\n    return Tables({views})\n", scope)  # our own text, from KINDS
+    return njit(inline="always", fastmath=FAST)(scope["_unpacked"])
+
+
+_unpacked = _unpacker()
+
+
 @njit(cache=True, fastmath=FAST)
 def verdicts_packed(q, passive, main_map, passive_map, offsets, floats, ints, meta, pad, sure_depth, grow):
-    """`verdict_packed` for the rows of q (and of passive, (N, p)) on this thread: a segment's states, the
-    tables unpacked and the working arrays made once."""
-    tables = _unpacked(floats, ints, meta)
-    rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved = _scratch(tables)
+    """The verdicts of the rows of q (and of passive, (N, p)) on this thread, without the threads' start-up:
+    a planner's state checks. The tables come packed in three arrays (`pack`) and the joint values are made
+    here (values = q . main_map + passive . passive_map + offsets): a call from Python costs a few
+    microseconds instead of fifty arrays' and a numpy product's worth. One state is one row: one piece of
+    code to compile, not two."""
+    t = _unpacked(floats, ints, meta)
+    s = _scratch(t)
     values = np.empty(offsets.shape[0])
     out = np.empty(q.shape[0], dtype=np.int8)
-    for s in range(q.shape[0]):
-        _values(q[s], passive[s], main_map, passive_map, offsets, values)
-        out[s] = _one(values, tables, pad, sure_depth, grow, rot, pos, tmp, ow, iw, bw, hw, eye, zero, moved)
+    for c in range(q.shape[0]):
+        _values(q[c], passive[c], main_map, passive_map, offsets, values)
+        out[c] = _one(values, t, s, pad, sure_depth, grow)
     return out
-
-
-@njit(cache=True, fastmath=FAST)
-def verdict_packed(q, passive, main_map, passive_map, offsets, floats, ints, meta, pad, sure_depth, grow):
-    """One configuration's verdict with the tables packed in three arrays (`pack`) and the joint values
-    made here (values = q . main_map + passive . passive_map + offsets): a call from Python costs a few
-    microseconds instead of forty arguments' and a numpy product's worth (a planner's state check)."""
-    values = np.empty(offsets.shape[0])
-    _values(q, passive, main_map, passive_map, offsets, values)
-    return verdict_one(values, _unpacked(floats, ints, meta), pad, sure_depth, grow)
 
 
 @njit(cache=True, inline="always", fastmath=FAST)
@@ -435,54 +581,23 @@ def _values(q, passive, main_map, passive_map, offsets, values):
             values[j] += passive[i] * passive_map[i, j]
 
 
-@njit(cache=True, inline="always", fastmath=FAST)
-def _unpacked(floats, ints, meta):
-    """The tables of `pack`, as views in the order of TABLES."""
-    return (_i1(ints, meta, 0), _f3(floats, meta, 1), _f2(floats, meta, 2),
-            _i1(ints, meta, 3), _f2(floats, meta, 4), _f2(floats, meta, 5),
-            _f1(floats, meta, 6), _f3(floats, meta, 7), _f2(floats, meta, 8),
-            _i1(ints, meta, 9), _f3(floats, meta, 10), _f2(floats, meta, 11),
-            _i1(ints, meta, 12), _f2(floats, meta, 13), _f1(floats, meta, 14),
-            _f3(floats, meta, 15), _i1(ints, meta, 16), _f3(floats, meta, 17),
-            _i1(ints, meta, 18), _f2(floats, meta, 19), _f1(floats, meta, 20),
-            _i2(ints, meta, 21), _i1(ints, meta, 22), _f3(floats, meta, 23),
-            _i1(ints, meta, 24), _f3(floats, meta, 25), _i1(ints, meta, 26),
-            _i2(ints, meta, 27), _i1(ints, meta, 28), _f3(floats, meta, 29),
-            _i1(ints, meta, 30), _f3(floats, meta, 31), _i1(ints, meta, 32),
-            _f2(floats, meta, 33), _f1(floats, meta, 34), _i2(ints, meta, 35),
-            _f2(floats, meta, 36), _f1(floats, meta, 37), _i1(ints, meta, 38),
-            _i1(ints, meta, 39), _f3(floats, meta, 40), _i1(ints, meta, 41),
-            _f3(floats, meta, 42), _i1(ints, meta, 43), _i1(ints, meta, 44),
-            _f3(floats, meta, 45), _i1(ints, meta, 46), _f3(floats, meta, 47), _i1(ints, meta, 48))
+def as_tables(named: dict[str, np.ndarray]) -> Tables:
+    """The model's tables by name -> `Tables`, each array of the dtype the kernel compiles for (one
+    specialisation: floats as float64, ints and flags as int64)."""
+    return Tables._make(np.ascontiguousarray(named[name], dtype=np.float64 if kind[0] == "f" else np.int64)
+                        for name, kind in zip(Tables._fields, KINDS))
 
 
-# name:kind of verdict_one's tables, in order (f float, i int; the number: dimensions)
-PACKING = [
-    'parent:i1', 'origin_r:f3', 'origin_p:f2', 'kind:i1', 'axis:f2', 'base_r:f2', 'base_p:f1', 'outer_c:f3',
-    'outer_r:f2', 'outer_n:i1', 'inner_c:f3', 'inner_r:f2', 'inner_n:i1', 'bound_c:f2', 'bound_r:f1',
-    'hull_points:f3', 'hull_np:i1', 'hull_planes:f3', 'hull_nj:i1', 'hull_c:f2', 'hull_r:f1', 'link_hulls:i2',
-    'link_nh:i1', 'hull_in:f3', 'hull_in_n:i1', 'hull_in_planes:f3', 'hull_in_nj:i1', 'pairs:i2',
-    'scene_links:i1', 'el_outer:f3', 'el_outer_n:i1', 'el_inner:f3', 'el_inner_n:i1', 'el_c:f2', 'el_r:f1',
-    'touches:i2', 'group_c:f2', 'group_r:f1', 'group_start:i1', 'group_members:i1', 'fine_points:f3', 'fine_np:i1',
-    'fine_planes:f3', 'fine_nj:i1', 'coarse:i1', 'el_points:f3', 'el_np:i1', 'el_in:f3', 'el_in_n:i1',
-]
-TABLES = tuple(entry.split(":")[0] for entry in PACKING)  # the same names: the parallel loop's arguments
-
-
-def pack(tables: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pack(t: Tables) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The tables as (floats, ints, meta): meta's row k holds table k's offset and shape."""
-    floats, ints, meta = [], [], np.zeros((len(PACKING), 4), dtype=np.int64)
+    floats, ints, meta = [], [], np.zeros((len(KINDS), 4), dtype=np.int64)
     f_at = i_at = 0
-    for k, entry in enumerate(PACKING):
-        name, kind = entry.split(":")
-        array = np.ascontiguousarray(tables[name], dtype=np.float64 if kind[0] == "f" else np.int64)
-        shape = list(array.shape) + [1] * (3 - array.ndim)
+    for k, (array, kind) in enumerate(zip(t, KINDS)):
+        meta[k] = (f_at if kind[0] == "f" else i_at, *array.shape, *[1] * (3 - array.ndim))
         if kind[0] == "f":
-            meta[k] = (f_at, *shape)
             floats.append(array.ravel())
             f_at += array.size
         else:
-            meta[k] = (i_at, *shape)
             ints.append(array.ravel())
             i_at += array.size
     return np.concatenate(floats), np.concatenate(ints), meta
