@@ -31,6 +31,7 @@ from tqdm import tqdm
 from mesh.messages.scene_description import CollisionModel
 from mesh.process import run_quietly
 from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.cores import compile_in_background, compiled
 from tdgen.robot.link_frames import LinkFrames
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import Surroundings
@@ -87,6 +88,9 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
     `collision_model` "fast" (the default) or "exact" (pybullet for every configuration). Exact checks
     run in this process with `workers=1` or when they are few; more use a spawn pool, which pickles
     the robot: its passive map, if any, must be a module-level function.
+    A machine that has not compiled the fast model yet gets the exact test's answers (the same) for up to
+    COLD_EXACT samples, while the model compiles in a process of its own (`cores.compile_in_background`):
+    a first workspace without waiting for the compiler.
     The progress bar goes to stderr and only shows when asked and stderr is a terminal;
     `on_progress(fraction)` is called after each chunk of configurations is checked.
     """
@@ -112,6 +116,10 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
             if collision_model == "exact":
                 tips = _tip_positions(world, robot, scene, q)
                 collision = _exact(world, robot, scene, q, workers, done)
+            elif len(q) <= COLD_EXACT and not compiled():
+                compile_in_background()  # the fast model's next run loads it
+                tips = _tip_positions_uncompiled(world, robot, scene, q)
+                collision = _exact(world, robot, scene, q, workers, done)
             else:
                 collision, tips = _fast(world, robot, scene, q, workers, done)
         finally:
@@ -120,6 +128,17 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
 
 
 FAST_CHUNK = 65_536  # configurations per call of the compiled model: memory stays flat in N
+# up to this many samples, a machine that has not compiled the fast model yet asks pybullet's exact test (the
+# same answers) while the model compiles in another process, rather than wait for the compiler
+COLD_EXACT = 200_000
+
+
+def _tip_positions_uncompiled(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarray) -> np.ndarray:
+    """`_tip_positions` in numpy (the same to well under a micrometre): nothing to compile first."""
+    frames = LinkFrames(robot, scene.robot.position, scene.robot.quaternion(), world.link_names())
+    slot = frames.names.index(robot.ee_link)
+    return np.vstack([frames.to_base(frames.frames(q[i:i + FAST_CHUNK])[1][:, slot])
+                      for i in range(0, len(q), FAST_CHUNK)])
 
 
 def _tip_positions(world: CollisionWorld, robot: Robot, scene: Surroundings, q: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ import numpy as np
 
 from devices.sim import compensation as c
 from tdgen.robot.collision import CollisionWorld
-from tdgen.robot.fast_collision import UNSURE, FastCollision
+from tdgen.robot.fast_collision import UNSURE, FastCollision, compile_all
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import cluttered_lab, encode_scene, load_scene
 from tdgen.sampling import random_configurations, sample_workspace
@@ -81,6 +81,7 @@ def main() -> None:
     uarm = Robot.load(c.UARM_URDF, ee=c.UARM_EE, passive_joints=c.UARM_PASSIVE_JOINTS, passive=c.uarm_passive)
     cases = [("ur10", ur10, "table-and-wall", None), ("ur10", ur10, "cluttered-lab", None),
              ("uarm", uarm, "iot-platform", "uarm")]
+    compile_all()  # a machine's first run compiles the model (or, for few samples, asks the exact test meanwhile)
     print(f"{n} samples per run, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores\n")
     print(f"{'robot':6} {'scene':16} {'exact s':>8} {'fast s':>8} {'ratio':>6} {'agree':>8} {'free-but-colliding':>19} "
           f"{'left to exact':>14}")

@@ -1,0 +1,99 @@
+"""The first start on a machine: where what is kept goes, what is compiled and when, what is said.
+
+What a user would notice: files in their own cache and data directories (XDG's, on Linux), never in
+site-packages; a first workspace as soon as pybullet can sample it, the same as any later one; an arm
+that collides with its table in most poses reported as information, a likely mistake as a warning.
+The first start's time is measured in tests/bench/bench_first_start.py.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+from tdgen import sampling
+from tdgen.generate import collision_warnings
+from tdgen.robot.model import Robot
+from tdgen.robot.surroundings import load_scene
+from tdgen.sampling import Samples, random_configurations, sample_workspace
+
+WHERE = """
+import json, numba
+from mesh.fabric.secrets import default_secrets_dir
+from tdgen.robot import sphere_kernel
+from tdgen.service import default_cache_dir
+print(json.dumps({"tdgen": str(default_cache_dir()), "secrets": str(default_secrets_dir()),
+                  "numba": numba.config.CACHE_DIR, "kernel": sphere_kernel.verdicts._cache.cache_path}))
+"""
+
+
+def _where(env: dict[str, str]) -> dict[str, str]:
+    clean = {k: v for k, v in os.environ.items()
+             if k not in ("TWINMESH_CACHE", "TWINMESH_SECRETS", "NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "XDG_DATA_HOME")}
+    out = subprocess.run([sys.executable, "-c", WHERE], env={**clean, **env}, capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_caches_and_secrets_go_to_the_users_xdg_directories(tmp_path):
+    where = _where({"XDG_CACHE_HOME": str(tmp_path / "cache"), "XDG_DATA_HOME": str(tmp_path / "data")})
+    assert where["tdgen"] == str(tmp_path / "cache" / "twinmesh" / "tdgen")
+    assert where["secrets"] == str(tmp_path / "data" / "twinmesh" / "secrets")
+    assert where["numba"] == str(tmp_path / "cache" / "twinmesh" / "numba")
+    assert where["kernel"].startswith(str(tmp_path / "cache" / "twinmesh" / "numba")), "compiled code beside the sources"
+
+
+def test_twinmesh_cache_and_numba_cache_dir_still_win(tmp_path):
+    where = _where({"XDG_CACHE_HOME": str(tmp_path / "cache"), "TWINMESH_CACHE": str(tmp_path / "mine"),
+                    "NUMBA_CACHE_DIR": str(tmp_path / "numba")})
+    assert where["tdgen"] == str(tmp_path / "mine" / "tdgen")
+    assert where["numba"] == str(tmp_path / "numba")
+
+
+def test_a_machine_without_the_compiled_model_gets_the_same_workspace_without_waiting_for_it(monkeypatch):
+    """Not compiled yet: pybullet's exact test samples (the same flags, the same points to the micrometre)
+    and the compiler is started once, in a process of its own."""
+    robot, scene = Robot.load("ur10.urdf"), load_scene("table-and-wall")
+    started = []
+    monkeypatch.setattr(sampling, "compiled", lambda: False)
+    monkeypatch.setattr(sampling, "compile_in_background", lambda: started.append(1))
+    cold = sample_workspace(robot, scene, 2500, seed=6, workers=1)
+    assert started == [1]
+    exact = sample_workspace(robot, scene, 2500, seed=6, workers=1, collision_model="exact")
+    assert np.array_equal(cold.collision, exact.collision)
+    assert np.abs(cold.positions - exact.positions).max() <= 0.001 + 1e-9  # mm
+
+
+def _samples(robot: Robot, share: float) -> Samples:
+    """Samples of which `share` are flagged colliding (the warnings' words depend on the flags and on what
+    pybullet finds in the flagged ones)."""
+    q = random_configurations(robot, 400, 3)
+    collision = np.arange(len(q)) < share * len(q)
+    return Samples(q, np.zeros((len(q), 3)), collision)
+
+
+def test_an_arm_colliding_with_its_table_in_most_poses_is_information_not_a_warning(caplog):
+    robot, scene = Robot.load("ur10.urdf"), load_scene("table-and-wall")
+    with caplog.at_level(logging.INFO, logger="tdgen.generate"):
+        warnings = collision_warnings(robot, scene, _samples(robot, 0.64))
+    assert warnings == []
+    said = [r for r in caplog.records if "64% of the samples collide" in r.getMessage()]
+    assert said and said[0].levelno == logging.INFO
+
+
+def test_a_scene_that_leaves_the_arm_little_room_is_a_warning():
+    robot, scene = Robot.load("ur10.urdf"), load_scene("table-and-wall")
+    warnings = collision_warnings(robot, scene, _samples(robot, 0.95))
+    assert len(warnings) == 1 and warnings[0].startswith("95% of the samples collide")
+    assert "little room" in warnings[0]
+
+
+def test_an_arm_that_collides_at_rest_is_still_a_warning():
+    """A start pose in collision: most likely collision meshes that overlap, said with the pairs."""
+    robot, scene = Robot.load("ur10.urdf"), load_scene("table-and-wall")
+    warnings = collision_warnings(robot, scene, _samples(robot, 0.64), at_rest=["base_link / shoulder_link"])
+    assert warnings[0].startswith("64% of the samples collide")
+    assert any("collides at rest" in w for w in warnings)
