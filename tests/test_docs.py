@@ -14,7 +14,7 @@ How each command is run, as a user following the page would run it:
 - everything else must exit 0 (curl with `--fail-with-body`, so any 4xx/5xx fails it), a `python` block too.
 Commands run in a shell in a scratch directory, with `twinmesh` from this interpreter's environment and
 `TWINMESH_CACHE` and `XDG_DATA_HOME` (a secure lab's secrets) in that directory (robot workspaces are generated
-afresh).
+afresh), and `twinmesh wait` given 600 s instead of 120 (`TWINMESH_WAIT_TIMEOUT`): a busy machine starts labs slowly.
 """
 from __future__ import annotations
 
@@ -117,7 +117,8 @@ class Walk:
         bin_dir = str(Path(sys.executable).parent)
         return {**os.environ, "PATH": bin_dir + os.pathsep + os.environ.get("PATH", ""),
                 "TWINMESH_CACHE": str(self.cwd / "cache"), "XDG_DATA_HOME": str(self.cwd / "data"),
-                "PYTHONUNBUFFERED": "1", "TWINMESH_CONNECT": f"tcp/127.0.0.1:{self.zenoh_port}"}
+                "PYTHONUNBUFFERED": "1", "TWINMESH_CONNECT": f"tcp/127.0.0.1:{self.zenoh_port}",
+                "TWINMESH_WAIT_TIMEOUT": "600"}  # `wait --timeout`: a lab starts slowly on a busy machine
 
     def rewrite(self, command: str) -> str:
         return (command.replace("127.0.0.1:8080", f"127.0.0.1:{self.http_port}")
