@@ -31,18 +31,19 @@ from tdgen.robot.scan_io import read_cloud, read_mesh
 PAD = 0.006  # m each box grows: a sample within 5 mm of a scanned point collides (pybullet counts 0.1 mm deep)
 DEFAULT_VOXEL = 0.02  # m
 MAX_PARTS = 128  # pybullet's links per created body (127) and its base
-FORMAT = 1  # the cache entries' layout: a change makes old entries unused
+FORMAT = 3  # the cache entries' layout: a change makes old entries unused
 
 
 @dataclass
 class Prepared:
     """A scan or mesh body ready to build: its pieces in the body's own frame."""
 
-    kind: str  # "voxels", "hull", "hulls" or "surface"
+    kind: str  # "voxels" (in the scene frame), "hull", "hulls" or "surface" (in the body's frame)
     parts: list[tuple[np.ndarray, np.ndarray]]  # per link: (vertices (V, 3), triangles (T, 3)); no triangles: a hull
     stats: dict[str, int] = field(default_factory=dict)  # points kept, voxels, boxes, hulls, triangles
     low: np.ndarray = field(default_factory=lambda: np.zeros(3))  # bounding box in the body frame (m)
     high: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3)))  # voxels: the padded boxes (low, high)
     seconds: float = 0.0  # to read and prepare (or take from the cache)
     cached: bool = False
 
@@ -55,9 +56,18 @@ def cache_dir() -> Path:
 _MEMORY: dict[tuple, Prepared] = {}
 
 
-def prepare_points(path: Path, voxel: float = DEFAULT_VOXEL, scale: float = 1.0) -> Prepared:
-    """The cloud in `path` as padded voxel boxes (body frame)."""
-    return _prepared(path, ("points", voxel, scale), lambda: _voxels(read_cloud(path, scale), voxel))
+def prepare_points(path: Path, voxel: float = DEFAULT_VOXEL, scale: float = 1.0,
+                   position=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0)) -> Prepared:
+    """The cloud in `path`, seen by a sensor at `position`/`rpy` (m, degrees fixed-axis), as padded voxel
+    boxes in the scene frame: the grid is the scene's, so walls and floors along its axes merge into
+    few boxes and each group's box is tight."""
+    def make() -> Prepared:
+        from scipy.spatial.transform import Rotation
+
+        points = Rotation.from_euler("xyz", rpy, degrees=True).apply(read_cloud(path, scale)) + np.asarray(position)
+        return _voxels(points, voxel)
+
+    return _prepared(path, ("points", voxel, scale, tuple(position), tuple(rpy)), make)
 
 
 def prepare_mesh(path: Path, scale: float = 1.0) -> Prepared:
@@ -88,7 +98,7 @@ def _prepared(path: Path, params: tuple, make) -> Prepared:
 
 
 def _store(entry: Path, p: Prepared) -> None:
-    arrays: dict[str, np.ndarray] = {"kind": np.array(p.kind), "low": p.low, "high": p.high,
+    arrays: dict[str, np.ndarray] = {"kind": np.array(p.kind), "low": p.low, "high": p.high, "boxes": p.boxes,
                                      "stats": np.array(list(p.stats.items()), dtype=object)}
     for k, (v, t) in enumerate(p.parts):
         arrays[f"v{k}"], arrays[f"t{k}"] = v, t
@@ -105,25 +115,47 @@ def _load(entry: Path) -> Prepared | None:
     try:
         with np.load(entry, allow_pickle=True) as z:
             parts = [(z[f"v{k}"], z[f"t{k}"]) for k in range(sum(1 for n in z.files if n.startswith("v")))]
-            return Prepared(str(z["kind"]), parts, {str(a): int(b) for a, b in z["stats"]}, z["low"], z["high"])
+            return Prepared(str(z["kind"]), parts, {str(a): int(b) for a, b in z["stats"]}, z["low"], z["high"],
+                            z["boxes"])
     except (OSError, KeyError, ValueError):
         return None
 
 
 def _voxels(points: np.ndarray, voxel: float) -> Prepared:
+    """The occupied voxels' outer faces (faces between an occupied and an empty voxel), merged into
+    rectangles, each pushed out by `PAD` and widened by `PAD` on every side: the padded voxels' surface
+    with few triangles (pybullet's cost grows with the triangles a link overlaps)."""
     cells = np.unique(np.floor(points / voxel).astype(np.int64), axis=0)
-    lo_cells, hi_cells = merge_cells(cells)
-    lows, highs = lo_cells * voxel - PAD, (hi_cells + 1) * voxel + PAD
-    parts = [_box_mesh(lows[g], highs[g]) for g in _split((lows + highs) / 2, MAX_PARTS)]
-    stats = {"points": len(points), "voxels": len(cells), "boxes": len(lows)}
-    return Prepared("voxels", parts, stats, lows.min(axis=0), highs.max(axis=0))
-
-
-def merge_cells(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Occupied integer cells (N, 3) -> boxes (lowest cell, highest cell), (B, 3) each, covering exactly
-    them: runs along x, then runs of equal x-runs along y, then along z."""
-    lo, hi = cells.copy(), cells.copy()
+    box_lo, box_hi = merge_cells(cells)
+    boxes = np.stack([box_lo * voxel - PAD, (box_hi + 1) * voxel + PAD], axis=1)
+    occupied = {tuple(c) for c in cells.tolist()}
+    rects_lo, rects_hi = [], []
     for axis in range(3):
+        step = np.zeros(3, dtype=np.int64)
+        step[axis] = 1
+        for sign in (1, -1):
+            neighbour = cells + sign * step
+            open_side = np.array([tuple(c) not in occupied for c in neighbour.tolist()], dtype=bool)
+            faces = cells[open_side]
+            if not len(faces):
+                continue
+            lo, hi = merge_cells(faces, [a for a in range(3) if a != axis])
+            lo_m, hi_m = lo * voxel - PAD, (hi + 1) * voxel + PAD  # widened in the face's plane
+            plane = (lo[:, axis] + (1 if sign > 0 else 0)) * voxel + sign * PAD
+            lo_m[:, axis] = hi_m[:, axis] = plane
+            rects_lo.append(lo_m)
+            rects_hi.append(hi_m)
+    lows, highs = np.vstack(rects_lo), np.vstack(rects_hi)
+    parts = [_rect_mesh(lows[g], highs[g]) for g in _split((lows + highs) / 2, MAX_PARTS)]
+    stats = {"points": len(points), "voxels": len(cells), "boxes": len(boxes), "faces": len(lows)}
+    return Prepared("voxels", parts, stats, lows.min(axis=0), highs.max(axis=0), boxes)
+
+
+def merge_cells(cells: np.ndarray, axes=(0, 1, 2)) -> tuple[np.ndarray, np.ndarray]:
+    """Occupied integer cells (N, 3) -> boxes (lowest cell, highest cell), (B, 3) each, covering exactly
+    them: runs along the first of `axes`, then runs of equal runs along the next, and so on."""
+    lo, hi = cells.copy(), cells.copy()
+    for axis in axes:
         others = [a for a in range(3) if a != axis]
         # boxes that agree on everything but `axis` and touch along it are one
         keys = np.column_stack([lo[:, others], hi[:, others]])
@@ -138,13 +170,18 @@ def merge_cells(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def _box_mesh(lows: np.ndarray, highs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The boxes' 8 corners and 12 triangles each, as one triangle soup."""
-    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=float)
-    tri = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-                    [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
-    verts = lows[:, None, :] + corners[None] * (highs - lows)[:, None, :]
-    faces = tri[None] + 8 * np.arange(len(lows))[:, None, None]
+def _rect_mesh(lows: np.ndarray, highs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned rectangles (flat along one axis: low == high there), two triangles each."""
+    flat = np.argmax(lows == highs, axis=1)
+    u, v = (flat + 1) % 3, (flat + 2) % 3
+    rows = np.arange(len(lows))
+    verts = np.repeat(lows[:, None, :], 4, axis=1)
+    for k, (du, dv) in enumerate(((0, 0), (1, 0), (1, 1), (0, 1))):
+        if du:
+            verts[rows, k, u] = highs[rows, u]
+        if dv:
+            verts[rows, k, v] = highs[rows, v]
+    faces = np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * rows[:, None, None]
     return verts.reshape(-1, 3), faces.reshape(-1, 3)
 
 
@@ -207,6 +244,39 @@ def decompose(mesh) -> list[np.ndarray]:
     return hulls
 
 
+_BUILT: dict[tuple[int, int], tuple[int, Prepared]] = {}  # (client, body) -> (links, what it was built from)
+
+
+def boxes_of(pb, client: int, body: int) -> np.ndarray | None:
+    """The padded boxes (B, 2, 3), scene frame, of a scan body built here, else None: what the fast
+    model can take for it instead of the box around each group of faces."""
+    held = _BUILT.get((client, body))
+    try:
+        if held is None or pb.getNumJoints(body, physicsClientId=client) != held[0] or held[1].kind != "voxels":
+            return None
+    except pb.error:  # a client since closed
+        return None
+    return held[1].boxes
+
+
+def fast_elements(pb, client: int, body: int) -> list | None:
+    """A scan body's padded boxes as the fast model's elements (`spheres.Convex`, scene frame), else None.
+    Solid boxes where pybullet holds their padded union's surface: a link overlaps a box deeper than
+    the fast model's sure depth only through that surface, as scanned shells are a voxel or two thick."""
+    from tdgen.robot.spheres import Convex
+
+    boxes = boxes_of(pb, client, body)
+    if boxes is None:
+        return None
+    lo, hi = boxes[:, 0], boxes[:, 1]
+    signs = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    corners = np.where(signs[None].astype(bool), hi[:, None, :], lo[:, None, :])  # (B, 8, 3)
+    normals = np.array([[-1.0, 0, 0], [1.0, 0, 0], [0, -1.0, 0], [0, 1.0, 0], [0, 0, -1.0], [0, 0, 1.0]])
+    offsets = np.stack([-lo[:, 0], hi[:, 0], -lo[:, 1], hi[:, 1], -lo[:, 2], hi[:, 2]], axis=1)  # n.x <= d
+    planes = np.concatenate([np.broadcast_to(normals, (len(boxes), 6, 3)), offsets[..., None]], axis=2)
+    return [Convex(c, p, outside=p) for c, p in zip(corners, planes)]
+
+
 def build(prepared: Prepared, position, orientation, client: int) -> int:
     """The body in pybullet client `client`: a static body whose links are the prepared parts."""
     import pybullet as pb
@@ -220,10 +290,12 @@ def build(prepared: Prepared, position, orientation, client: int) -> int:
             shapes.append(pb.createCollisionShape(pb.GEOM_MESH, vertices=verts.tolist(), physicsClientId=client))
     base, links = shapes[0], shapes[1:]
     n = len(links)
-    return pb.createMultiBody(0.0, base, -1, list(position), list(orientation), linkMasses=[0.0] * n,
+    body = pb.createMultiBody(0.0, base, -1, list(position), list(orientation), linkMasses=[0.0] * n,
                               linkCollisionShapeIndices=links, linkVisualShapeIndices=[-1] * n,
                               linkPositions=[[0.0, 0.0, 0.0]] * n, linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * n,
                               linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n,
                               linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n, linkParentIndices=[0] * n,
                               linkJointTypes=[pb.JOINT_FIXED] * n, linkJointAxis=[[0.0, 0.0, 1.0]] * n,
                               physicsClientId=client)
+    _BUILT[(client, body)] = (n, prepared)
+    return body

@@ -294,7 +294,10 @@ def build_into(scene: Surroundings, client: int) -> list[int]:
         if isinstance(body, FileBody):
             from tdgen.robot.scan_bodies import build
 
-            ids.append(build(prepare(body), body.position, orn, client))
+            made = prepare(body)
+            at, turn = (((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)) if made.kind == "voxels"  # already in the scene frame
+                        else (body.position, orn))
+            ids.append(build(made, at, turn, client))
             continue
         if isinstance(body, BoxBody):
             half = [s / 2 for s in body.size]
@@ -342,7 +345,7 @@ def prepare(body: "MeshBody | PointsBody"):
 
     path = Path(body.file)
     if isinstance(body, PointsBody):
-        return prepare_points(path, body.voxel, body.scale)
+        return prepare_points(path, body.voxel, body.scale, body.position, body.rpy)
     return prepare_mesh(path, body.scale)
 
 
