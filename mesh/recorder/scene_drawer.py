@@ -247,6 +247,8 @@ class SceneDrawer:
             self._shown.pop(body.name, None)
             entry = self._shown_colour(body)
             if entry is not None:
+                if self.sim_time is None:  # no poses yet: from the start of the simulated time on
+                    self.rec.set_time("sim_time", duration=0.0)
                 self.rec.log(entry.path, entry.archetype)
         if body.moving:  # a static pose would shadow the poses to come: log it as the first of them
             self._batch_pose(body.name, body.pose, wall, seq)
@@ -361,7 +363,8 @@ def body_shape(body: Body, with_colour: bool = True) -> rr.Boxes3D | rr.Cylinder
 def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing_robots: dict[str, Pose],
                   own_worlds: dict[str, Pose] | None = None):
     """How a recording of a lab opens: the lab in 3D, each robot simulated apart in its own 3D tab, joint
-    plots per robot, states, the log. The live view sends the same blueprint, so a replay looks the same.
+    plots per robot, states, the log, the time cursor following the latest data. The live view sends the
+    same blueprint, so a replay looks the same.
 
     `thing_robots` are the robot Things of the lab's world (name -> base pose): their workspaces are
     hidden in the lab view (one eye toggle per robot in the blueprint panel: `robots/<r>/workspace`)
@@ -401,7 +404,8 @@ def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing
     side = rrb.Vertical(rrb.Tabs(*joints), values, log) if joints else rrb.Vertical(values, log)
     return rrb.Blueprint(rrb.Horizontal(main, side, column_shares=[3, 2]),
                          rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
-                         rrb.TimePanel(timeline="sim_time" if scene is not None else "time", state="collapsed"))
+                         rrb.TimePanel(timeline="sim_time" if scene is not None else "time", state="collapsed",
+                                       play_state="following"))
 
 
 def _eye(bases: list, least: float = 1.0):

@@ -20,7 +20,7 @@ import time
 
 from mesh.fabric.settings import MeshSettings
 
-MEMORY = "64MiB"  # the history the gRPC proxy keeps for browsers that connect later (static data besides)
+MEMORY = "16MiB"  # the history the gRPC proxy keeps for a browser that connects later (static data besides)
 
 
 def view_url(address: tuple[str, int], grpc_port: int) -> str:
