@@ -6,6 +6,7 @@ import signal
 import socket
 import subprocess
 import time
+import uuid
 
 import httpx
 import psutil
@@ -20,16 +21,26 @@ def lab(lights):
     return lights  # the session's lights lab, lent to this module (conftest.py)
 
 
-def run_up(endpoint: str, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+def run_up(endpoint: str, *args: str, timeout: float = 60, mark: str = "") -> subprocess.CompletedProcess:
     view = () if "--view" in args or "--no-view" in args else ("--view", f"127.0.0.1:{free_port()}")
     return subprocess.run(twinmesh_cmd(endpoint, "up", *args, *view), capture_output=True, text=True, timeout=timeout,
-                          cwd=REPO)
+                          cwd=REPO, env={**os.environ, MARK: mark})
 
 
-def children_of_nobody_left(before: set[int]) -> list[str]:
-    """twinmesh processes that appeared since `before` and still run."""
-    return [" ".join(p.cmdline()) for p in psutil.process_iter()
-            if p.pid not in before and "twinmesh" in " ".join(p.cmdline()) and p.status() != psutil.STATUS_ZOMBIE]
+MARK = "TWINMESH_TEST_RUN"  # in the environment of what one test started, and so of every process it started
+
+
+def left_running(mark: str) -> list[str]:
+    """The processes started under `mark` that still run: only this test's (other tests, other pytest
+    workers and other people's labs on the machine run twinmesh processes too)."""
+    found = []
+    for p in psutil.process_iter():
+        try:
+            if p.environ().get(MARK) == mark and p.status() != psutil.STATUS_ZOMBIE:
+                found.append(" ".join(p.cmdline()))
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            continue
+    return found
 
 
 # --- ready -------------------------------------------------------------------------------------
@@ -93,17 +104,17 @@ def test_a_taken_port_is_one_line_naming_it_and_its_option_and_nothing_is_left_r
         port = taken.getsockname()[1]
         zenoh_port = port if which == "zenoh" else free_port()
         http_port = port if which == "http" else free_port()
-        before = {p.pid for p in psutil.process_iter()}
+        mark = uuid.uuid4().hex
         t0 = time.monotonic()
         r = run_up(f"tcp/127.0.0.1:{free_port()}", "lights", "--zenoh", f"tcp/127.0.0.1:{zenoh_port}",
-                   "--http", f"127.0.0.1:{http_port}")
+                   "--http", f"127.0.0.1:{http_port}", mark=mark)
         took = time.monotonic() - t0
     assert r.returncode != 0 and took < 60  # a hang detector, not a timing goal
     errors = [line for line in r.stderr.splitlines() if line.strip()]
     assert len(errors) == 1, r.stderr
     assert f"127.0.0.1:{port}" in errors[0] and ("--http" if which == "http" else "--zenoh") in errors[0]
     assert "Traceback" not in r.stderr and "ready" not in r.stdout
-    assert not children_of_nobody_left(before)
+    assert not left_running(mark)
 
 
 def test_the_router_endpoint_is_chosen_on_up_itself(tmp_path):

@@ -74,13 +74,16 @@ def test_a_fleet_device_serves_the_affordances_of_the_labs_device(fleet, device,
     assert _affordances(served) == _affordances(lab)
 
 
-def _sse(url: str, count: int, seconds: float) -> list[object]:
-    """Up to `count` data items of an SSE stream, within `seconds`."""
+def _sse(url: str, count: int, seconds: float, opened: threading.Event | None = None) -> list[object]:
+    """Up to `count` data items of an SSE stream, within `seconds`; `opened` is set at its first line
+    (the adapter registers a stream before it answers: every later change is in it)."""
     got: list[object] = []
 
     def read() -> None:
         with httpx.stream("GET", url, timeout=seconds + 5) as r:
             for line in r.iter_lines():
+                if opened is not None:
+                    opened.set()
                 if line.startswith("data:"):
                     got.append(json.loads(line[5:]))
                     if len(got) >= count:
@@ -95,9 +98,11 @@ def test_a_running_belt_carries_parcels_past_its_beam_and_colour_sensor(fleet):
     base = fleet.http
     assert httpx.get(f"{base}/infrared-5/properties/objectPresence").json() is False
     events: list[object] = []
-    watcher = threading.Thread(target=lambda: events.extend(_sse(f"{base}/infrared-5/events/detectedObject/sse", 2, 20)))
+    opened = threading.Event()
+    watcher = threading.Thread(target=lambda: events.extend(_sse(f"{base}/infrared-5/events/detectedObject/sse", 2, 20,
+                                                                 opened)))
     watcher.start()
-    time.sleep(0.5)
+    assert opened.wait(20), "the event stream did not open"
     assert httpx.put(f"{base}/belt-5/properties/speed", json=100).status_code == 204
     assert httpx.post(f"{base}/belt-5/actions/startBeltForward").status_code == 200
     colours = []

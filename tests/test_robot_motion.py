@@ -3,11 +3,11 @@ of the test's own, ten times finer), refusals name why, a dry run moves nothing,
 from __future__ import annotations
 
 import threading
-import time
 
 import msgspec
 import numpy as np
 import pytest
+from waiting import always, eventually
 
 from devices.planning.moves import MovePlan
 from devices.planning.paths import STEP_MM, NoPath, PathChecker, find_path
@@ -228,16 +228,13 @@ def test_a_move_under_way_can_be_stopped_where_it_is(ur10, scene, workspace):
 
         mover = threading.Thread(target=move)
         mover.start()
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and twin.joint_position() == start:  # planning, then moving
-            time.sleep(0.01)
-        time.sleep(0.3)
+        eventually(lambda: twin.joint_position() != start, timeout=10, interval=0.01,
+                   what="the move under way (planning, then moving)")
         assert twin.stop() is True
         mover.join(10)
         assert not mover.is_alive() and errors and errors[0].status == 409 and errors[0].reason == "stopped"
         halted = twin.joint_position()
-        time.sleep(0.3)
-        assert twin.joint_position() == halted  # it stays where it stopped
+        always(lambda: twin.joint_position() == halted, 0.3, what="it stays where it stopped")
         assert halted != pytest.approx(goal, abs=1e-3) and halted != start
         assert errors[0].extra["joints"] == halted
         assert twin.stop() is False  # nothing left to stop

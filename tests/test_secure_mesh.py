@@ -23,6 +23,7 @@ from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
 from tests.labs import Lab, start_lab, stop_process, twinmesh_cmd
+from tests.waiting import always
 
 pytestmark = [pytest.mark.lab, pytest.mark.timeout(600)]
 
@@ -105,8 +106,8 @@ def test_without_credentials_a_zenoh_session_gets_nothing_and_changes_nothing(se
         assert [r for r in peer.get("wot/light-left/properties/lightState", timeout=1) if r.ok] == []
         assert [r for r in peer.get("wot/light-left/actions/switchOn", payload=b"", timeout=1) if r.ok] == []
         held = _hijack(peer)
-        time.sleep(1)
-        assert "fake" not in _listed(lab) and _state(lab, secrets) == before
+        always(lambda: "fake" not in _listed(lab) and _state(lab, secrets) == before, 1.0,
+               what="nothing the lone peer declared is heard")
         for h in held:
             h.undeclare()
 
@@ -119,9 +120,8 @@ def test_a_consumer_reads_and_invokes_but_cannot_hijack_a_thing(secure):
         client.invoke("light-left", "switchOff")
         assert client.read("light-left", "lightState") is False
         held = _hijack(session)
-        time.sleep(1)
-        assert client.read("light-left", "lightState") is False
-        assert _state(lab, secrets) is False
+        always(lambda: client.read("light-left", "lightState") is False and _state(lab, secrets) is False, 1.0,
+               what="the consumer's hijack changes nothing")
         assert "fake" not in _listed(lab) and "hijacked" not in json.dumps(httpx.get(f"{lab.http}/light-left").json())
         client.invoke("light-left", "switchOn")
         assert _state(lab, secrets) is True
