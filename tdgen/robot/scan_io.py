@@ -34,7 +34,7 @@ def read_cloud(path: Path, scale: float = 1.0) -> np.ndarray:
     except SceneError:
         raise
     except Exception as exc:  # each library fails in its own way on a broken file
-        raise SceneError(f"{path}: cannot read the point cloud ({type(exc).__name__}: {exc})") from None
+        raise SceneError(f"{path}: cannot read the point cloud ({_first_line(exc)})") from None
     points = np.asarray(raw, dtype=float).reshape(-1, 3)
     if not len(points):
         raise SceneError(f"{path}: the point cloud holds no points")
@@ -59,7 +59,7 @@ def read_mesh(path: Path, scale: float = 1.0):
     try:
         mesh = trimesh.load(str(path), force="mesh", process=True)
     except Exception as exc:
-        raise SceneError(f"{path}: cannot read the mesh ({type(exc).__name__}: {exc})") from None
+        raise SceneError(f"{path}: cannot read the mesh ({_first_line(exc)})") from None
     if not isinstance(mesh, trimesh.Trimesh) or not len(mesh.faces):
         raise SceneError(f"{path}: the mesh has no faces (a point cloud? use a \"points\" body)")
     if not np.isfinite(mesh.vertices).all():
@@ -70,6 +70,12 @@ def read_mesh(path: Path, scale: float = 1.0):
         raise SceneError(f"{path}: the mesh is {extent:,.0f} m across: millimetres given as metres? "
                          "(give the body \"scale\": 0.001)")
     return mesh
+
+
+def _first_line(exc: Exception) -> str:
+    """A library's error in one line: pydantic and others write a page."""
+    text = (str(exc).strip().splitlines() or [""])[0][:160]
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 def _readable(path: Path) -> None:

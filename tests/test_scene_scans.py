@@ -1,0 +1,136 @@
+"""Scans as scene bodies: every cloud format read alike, bad files refused in one line, and a robot that
+comes within 5 mm of a scanned point never called free (scans rendered from a scene whose truth is known)."""
+from __future__ import annotations
+
+import json
+
+import msgspec
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from devices.cli.main import main
+from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.fast_collision import FastCollision
+from tdgen.robot.model import Robot
+from tdgen.robot.scan_io import read_cloud
+from tdgen.robot.surroundings import BoxBody, PointsBody, SceneError, Surroundings, load_scene
+from tests.scans import Truth, render_scan, write_pcd, write_ply, write_xyz
+
+TABLE = {"type": "box", "name": "table", "size": [0.6, 0.6, 0.6], "position": [0.0, 0.0, 0.3]}  # known, not scanned
+ROOM = Surroundings(name="room", bodies=[
+    BoxBody(name="floor", size=(3.0, 3.0, 0.02), position=(0.0, 0.0, -0.01)),
+    BoxBody(name="wall", size=(2.0, 0.1, 1.6), position=(0.0, 0.6, 0.8)),
+    BoxBody(name="crate", size=(0.3, 0.3, 0.4), position=(0.55, -0.2, 0.2))])
+
+
+@pytest.fixture(autouse=True, scope="module")
+def scan_cache(tmp_path_factory):
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("TWINMESH_CACHE", str(tmp_path_factory.mktemp("cache")))
+        yield
+
+
+@pytest.fixture(scope="module")
+def scan():
+    return render_scan(ROOM, eye=(1.4, -1.3, 1.5), target=(0.0, 0.2, 0.4), size=(96, 72), seed=3)
+
+
+def _scene(tmp_path, file: str, pose=None, table: bool = False, **extra) -> str:
+    """A scene of the scan in `file` seen from `pose`; with `table`, the robot on a known table in it."""
+    position, rpy = pose if pose else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    body = {"type": "points", "name": "scan", "file": file, "position": list(position), "rpy": list(rpy), **extra}
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps({"name": "scanned", "robot": {"position": [0, 0, 0.6 if table else 0.0]},
+                                "bodies": [TABLE, body] if table else [body]}))
+    return str(path)
+
+
+def _show(scene: str):
+    return CliRunner().invoke(main, ["scene", "show", scene])
+
+
+@pytest.mark.parametrize("write", [
+    lambda s, d: write_pcd(s, d / "a.pcd", "ascii"), lambda s, d: write_pcd(s, d / "b.pcd", "binary"),
+    lambda s, d: write_pcd(s, d / "c.pcd", "binary_compressed"),
+    lambda s, d: write_pcd(s, d / "d.pcd", "binary_compressed", extra=False),
+    lambda s, d: write_ply(s, d / "e.ply", ascii=True), lambda s, d: write_ply(s, d / "f.ply"),
+    lambda s, d: write_xyz(s, d / "g.xyz")], ids=["pcd-ascii", "pcd-binary", "pcd-compressed-label-rgba",
+                                               "pcd-compressed-xyz", "ply-ascii", "ply-binary", "xyz-text"])
+def test_every_cloud_format_gives_the_scans_points(scan, tmp_path, write):
+    points = read_cloud(write(scan, tmp_path))
+    assert points.shape == scan.finite().shape  # an organized cloud's NaN points dropped, none else
+    assert np.allclose(points, scan.finite(), atol=1e-4)
+
+
+def test_scene_show_tells_what_a_scan_became(scan, tmp_path):
+    write_pcd(scan, tmp_path / "room.pcd")
+    shown = _show(_scene(tmp_path, "room.pcd", (scan.position, scan.rpy)))
+    assert shown.exit_code == 0, shown.output
+    line = next(s for s in shown.output.splitlines() if s.strip().startswith("scan:"))
+    assert f"{len(scan.finite()):,} points" in line and "voxels" in line and "boxes" in line
+    lo, hi = (np.array([float(v) for v in part.strip(" ()m").split(",")]) for part in line.split("box ")[1].split(".."))
+    truth = scan.world()  # the box is in the scene frame: the sensor's pose applied
+    assert np.all(lo <= truth.min(axis=0)) and np.all(hi >= truth.max(axis=0))
+    assert np.all(hi - lo < truth.max(axis=0) - truth.min(axis=0) + 0.1)
+
+
+def _nan_pcd(path):
+    from pypcd4 import Encoding, PointCloud
+
+    PointCloud.from_xyz_points(np.full((40, 3), np.nan, dtype=np.float32)).save(path, encoding=Encoding.BINARY_COMPRESSED)
+
+
+@pytest.mark.parametrize("name, make, said", [
+    ("missing.pcd", None, "file not found"),
+    ("empty.pcd", lambda p: p.write_bytes(b""), "empty"),
+    ("garbage.pcd", lambda p: p.write_bytes(b"\x00\x01not a pcd at all" * 20), "cannot read"),
+    ("scan.e58", lambda p: p.write_text("1 2 3\n"), "unknown point cloud format"),
+    ("holes.pcd", _nan_pcd, "NaN"),
+    ("millimetres.xyz", lambda p: p.write_text("0 0 0\n1500 0 0\n0 2500 800\n"), "millimetres given as metres"),
+    ("words.xyz", lambda p: p.write_text("1 2 3\nfour five six\n"), "not x y z"),
+])
+def test_a_bad_scan_is_one_line_naming_the_file_and_exit_2(tmp_path, name, make, said):
+    if make:
+        make(tmp_path / name)
+    shown = _show(_scene(tmp_path, name))
+    assert shown.exit_code == 2
+    lines = shown.output.strip().splitlines()
+    assert len(lines) == 1 and name in lines[0] and said in lines[0], shown.output
+    assert "Traceback" not in shown.output
+
+
+def test_a_scan_in_millimetres_is_fine_with_its_scale(tmp_path):
+    (tmp_path / "mm.xyz").write_text("0 0 0\n1500 0 0\n0 2500 800\n")
+    scene = load_scene(_scene(tmp_path, "mm.xyz", scale=0.001))
+    assert isinstance(scene.bodies[0], PointsBody)
+
+
+def test_a_voxel_out_of_range_is_refused(tmp_path):
+    (tmp_path / "a.xyz").write_text("0 0 0\n")
+    with pytest.raises(SceneError, match="voxel must be between"):
+        load_scene(_scene(tmp_path, "a.xyz", voxel=0))
+
+
+@pytest.fixture(scope="module")
+def scanned_world(scan, tmp_path_factory):
+    """UR10 on its table in the room, the room known only from its scan; the truth from the scanned points."""
+    folder = tmp_path_factory.mktemp("room")
+    write_pcd(scan, folder / "room.pcd")
+    scene = load_scene(_scene(folder, "room.pcd", (scan.position, scan.rpy), table=True))
+    robot = Robot.load("ur10.urdf")
+    truth = Truth(robot, scene, scan.world(), msgspec.structs.replace(scene, bodies=scene.bodies[:1]))
+    world = CollisionWorld(robot, scene)
+    yield robot, world, truth
+    world.close()
+    truth.close()
+
+
+def test_near_a_scanned_point_is_never_free_far_from_all_is(scanned_world):
+    robot, world, truth = scanned_world
+    qs = np.random.default_rng(5).uniform(robot.lows(), robot.highs(), (400, len(robot.lows())))
+    exact = truth.figures(qs, world.colliding(qs))
+    fast = truth.figures(qs, FastCollision(world).colliding(qs))
+    for figures in (exact, fast):
+        assert figures.near > 20 and figures.near_free == 0
+        assert figures.far > 20 and figures.far_share >= 0.99
