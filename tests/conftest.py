@@ -74,6 +74,13 @@ def _world_reset(lab: Lab) -> None:
 
 
 @pytest.fixture(scope="session")
+def tdgen_cache(tmp_path_factory) -> Path:
+    """One TD generator cache for the session's iot-labs: the UR10 with the same samples is generated once
+    (the cache key covers every input, so a lab that differs in any of them generates its own)."""
+    return tmp_path_factory.mktemp("tdgen-cache")
+
+
+@pytest.fixture(scope="session")
 def lights_lab(tmp_path_factory) -> Iterator[Lab]:
     """`twinmesh up lights` with the adapter and a tdgen cache (`start_robot_lab`): robots may join it."""
     lab = start_robot_lab(tmp_path_factory.mktemp("shared-lights"))

@@ -67,10 +67,10 @@ def almost(schema: dict) -> st.SearchStrategy:
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
+def lab(tmp_path_factory, tdgen_cache):
     tmp = tmp_path_factory.mktemp("fuzz")
     lab = start_lab(tmp, None, http=True, extra_args=("--speed", "max", "--samples", SAMPLES,
-                                                      "--tdgen-cache", str(tmp / "cache")))
+                                                      "--tdgen-cache", str(tdgen_cache)))
     yield lab
     assert lab.stop(), "the lab did not stop cleanly"
 

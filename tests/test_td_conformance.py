@@ -44,10 +44,10 @@ ACTION_STATUS = {  # the WoT Profile's ActionStatus, as twinmesh answers it
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
+def lab(tmp_path_factory, tdgen_cache):
     tmp = tmp_path_factory.mktemp("conformance")
     lab = start_lab(tmp, None, http=True, things=THINGS,
-                    extra_args=("--speed", "max", "--samples", SAMPLES, "--tdgen-cache", str(tmp / "cache")))
+                    extra_args=("--speed", "max", "--samples", SAMPLES, "--tdgen-cache", str(tdgen_cache)))
     yield lab
     assert lab.stop(), "the lab did not stop cleanly"
 
