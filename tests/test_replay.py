@@ -1,0 +1,128 @@
+"""`twinmesh replay FILE.rrd`: a recording served to a browser on any host, or the desktop viewer.
+
+The command's refusals run without a browser; the replay itself is checked over HTTP (the page, its
+policy, the stream's port on loopback only) and then in headless Chromium: the recording drawn as
+it was recorded, no Rerun error on the console, no request to any other host.
+"""
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+from labs import REPO, free_port
+from rerun_view import colour_share, viewer_page
+from waiting import eventually
+
+from mesh.messages.scene_description import Body, Pose, Poses, SceneDescription
+from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles, lab_blueprint
+
+MAGENTA = (255, 0, 255)
+TWINMESH = str(Path(sys.executable).with_name("twinmesh"))
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    """A small lab as the recorder draws it: a table, a lamp switched on in magenta, the lab's blueprint."""
+    import rerun as rr
+
+    path = tmp_path_factory.mktemp("replay") / "lamp.rrd"
+    rec = rr.RecordingStream("twinmesh")
+    rec.save(str(path))
+    scene = SceneDescription("bench", bodies=[
+        Body("table", "box", (1.0, 0.6, 0.75), Pose((0.0, 0.0, 0.375)), (0.55, 0.45, 0.35)),
+        Body("lamp-shade", "box", (0.3, 0.3, 0.15), Pose((0.0, 0.0, 0.9)), (0.35, 0.35, 0.35), shows="lamp")])
+    drawer = SceneDrawer(rec)
+    drawer.draw_scene(SceneFiles(scene, {}), time.time(), 0)
+    rec.set_time("sim_time", duration=1.0)
+    for entry in drawer.add_poses(Poses(time=1.0, states={"lamp": {"on": True, "color": [1.0, 0.0, 1.0]}}),
+                                  time.time(), 1):
+        rec.log(entry.path, entry.archetype, static=entry.static)
+    drawer.flush()
+    rec.send_blueprint(lab_blueprint(scene, [], {}))
+    rec.disconnect()
+    return path
+
+
+def replay(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([TWINMESH, "replay", *args], capture_output=True, text=True, timeout=120, cwd=REPO,
+                          env={**os.environ, **(env or {})})
+
+
+def test_a_missing_file_is_named_with_exit_2(tmp_path):
+    r = replay(str(tmp_path / "nothing.rrd"))
+    assert r.returncode == 2 and "nothing.rrd: no such file" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_file_that_is_not_a_recording_is_refused_with_exit_2(tmp_path):
+    (tmp_path / "notes.rrd").write_text("hello")
+    r = replay(str(tmp_path / "notes.rrd"))
+    assert r.returncode == 2 and "is not a Rerun recording" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_the_desktop_viewer_without_a_display_says_what_to_do_instead(recording):
+    r = replay(str(recording), "--desktop", env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    assert r.returncode == 2 and "DISPLAY is not set" in r.stderr and "without --desktop" in r.stderr
+
+
+def test_a_port_in_use_is_named(recording):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        r = replay(str(recording), "--port", str(port))
+    assert r.returncode == 2 and f"port {port} on 127.0.0.1 is taken (--port)" in r.stderr
+
+
+class Replaying:
+    """`twinmesh replay` running in the background; `url` is what it printed."""
+
+    def __init__(self, path: Path, tmp: Path):
+        self.port = free_port()
+        self.log = tmp / "replay.log"
+        self.proc = subprocess.Popen([TWINMESH, "replay", str(path), "--port", str(self.port),
+                                      "--grpc-port", str(free_port())],
+                                     stdout=open(self.log, "wb"), stderr=subprocess.STDOUT, cwd=REPO)
+        line = eventually(lambda: self._said("replaying "), timeout=120, what="the replay's URL")
+        self.url = line.split(" at ", 1)[1].split()[0]
+
+    def _said(self, text: str) -> str | None:
+        assert self.proc.poll() is None, self.log.read_text()
+        return next((line for line in self.log.read_text().splitlines() if line.startswith(text)), None)
+
+    def stop(self) -> int:
+        self.proc.send_signal(signal.SIGINT)
+        return self.proc.wait(timeout=30)
+
+
+@pytest.fixture
+def replaying(recording, tmp_path):
+    r = Replaying(recording, tmp_path)
+    yield r
+    if r.proc.poll() is None:
+        r.stop()
+
+
+def test_the_replay_page_is_served_on_loopback_with_a_policy_that_keeps_it_here(replaying):
+    assert replaying.url.startswith(f"http://127.0.0.1:{replaying.port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A")
+    with urllib.request.urlopen(replaying.url, timeout=60) as page:
+        policy = page.headers["Content-Security-Policy"]
+        body = page.read().decode()
+    assert "connect-src 'self' http://*:" in policy and "default-src 'self'" in policy
+    assert "fonts.googleapis.com" not in body  # the page's web-font links are taken out
+    assert replaying.stop() in (0, -2, 130)
+
+
+@pytest.mark.browser
+@pytest.mark.slow
+def test_a_replay_draws_the_recording_in_the_browser_and_asks_no_other_host(replaying):
+    with viewer_page(replaying.url) as view:
+        eventually(lambda: colour_share(view.pixels(), MAGENTA) > 0.001, timeout=900, interval=5.0,
+                   what="the magenta lamp of the recording in the view")
+        assert view.rerun_problems() == []
+        assert view.foreign_hosts() == set()
