@@ -72,26 +72,13 @@ def test_chunked_body_is_accepted(left, mesh):
     assert mesh.read("light-left", "lightColor") == [0, 1, 0]
 
 
+# one per kind of answer through the real adapter and device; every route-level case (schema rules,
+# JSON, missing inputs, unknown affordances, methods) is in tests/unit/test_http_routes.py
 BAD = [
-    ("PUT", "properties/lightState", b"7", 400, "expected boolean"),
-    ("PUT", "properties/lightState", b'"on"', 400, "expected boolean"),
-    ("PUT", "properties/lightState", b"", 400, "a value is required"),
-    ("PUT", "properties/lightColor", b"[1, 0]", 400, "at least 3 items"),
     ("PUT", "properties/lightColor", b"[1, 0, 2]", 400, "above the maximum 1"),
-    ("POST", "actions/setColor", b'{"r": 2, "g": 0, "b": 0}', 400, "input.r: 2 is above the maximum 1"),
-    ("POST", "actions/setColor", b'{"r": 1, "g": 0}', 400, "missing required field 'b'"),
-    ("POST", "actions/setColor", b'{"r": "1", "g": 0, "b": 0}', 400, "expected number"),
-    ("POST", "actions/setColor", b"", 400, "needs an input"),
     ("POST", "actions/setColor", b'{"r": 1, "g"', 400, "not valid JSON"),
-    ("PUT", "properties/lightState", b"tru", 400, "not valid JSON"),
-    ("POST", "actions/switchOn", b"true", 400, "takes no input"),
-    ("PUT", "properties/noSuchProperty", b"true", 404, "no property"),
     ("GET", "properties/noSuchProperty", None, 404, "no property"),
-    ("POST", "actions/noSuchAction", None, 404, "no action"),
-    ("GET", "events/noSuchEvent", None, 404, "no event"),
-    ("PUT", "actions/setColor", b'{"r": 0, "g": 0, "b": 0}', 405, "not allowed"),
     ("POST", "properties/lightState", b"true", 405, "not allowed"),
-    ("DELETE", "properties/lightState", None, 405, "not allowed"),
 ]
 
 
@@ -106,7 +93,7 @@ def test_bad_input_is_a_4xx_problem_and_changes_nothing(left, mesh, method, path
     assert problem["status"] == status and message in problem["detail"], problem
     assert problem["instance"] == f"/light-left/{path}"
     if status == 405:
-        allowed = {"properties/lightState": "GET, HEAD, PUT", "actions/setColor": "POST"}
+        allowed = {"properties/lightState": "GET, HEAD, PUT"}
         assert set(r.headers["allow"].split(", ")) == set(allowed[path].split(", "))
     assert state(mesh) == before
 

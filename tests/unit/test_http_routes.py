@@ -110,7 +110,10 @@ BAD = [
     ("PUT", "properties/mode", b'"c"', 400, ""),
     ("POST", "actions/setColor", b'{"r": 2, "g": 0, "b": 0}', 400, "input.r: 2 is above the maximum 1"),
     ("POST", "actions/setColor", b'{"r": 1, "g": 0}', 400, "missing required field 'b'"),
+    ("POST", "actions/setColor", b'{"r": "1", "g": 0, "b": 0}', 400, "expected number"),
     ("POST", "actions/setColor", b"", 400, "needs an input"),
+    ("PUT", "properties/lightState", b"tru", 400, "not valid JSON"),
+    ("PUT", "properties/lightState", b'"on"', 400, "expected boolean"),
     ("POST", "actions/setColor", b'{"r": 1, "g"', 400, "not valid JSON"),
     ("POST", "actions/switchOn", b"true", 400, "takes no input"),
     ("POST", "actions/switchOn?async=maybe", None, 400, "async must be true or false"),
@@ -142,7 +145,8 @@ def test_bad_input_is_a_problem_naming_it_and_nothing_reaches_the_thing(client, 
 
 @pytest.mark.parametrize("method, path, allow", [("PUT", "properties/serial", {"GET", "HEAD"}),
                                                  ("GET", "properties/secret", {"PUT"}),
-                                                 ("DELETE", "properties/lightState", {"GET", "HEAD", "PUT"})])
+                                                 ("DELETE", "properties/lightState", {"GET", "HEAD", "PUT"}),
+                                                 ("PUT", "actions/setColor", {"POST"})])
 def test_405_says_what_is_allowed(client, method, path, allow):
     r = client.request(method, f"/lamp/{path}", json="x")
     problem(r, 405)
