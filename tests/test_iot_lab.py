@@ -84,15 +84,17 @@ def long_poll(url: str) -> queue.Queue:
 def sse(url: str) -> queue.Queue:
     """Every event of an SSE form (`.../sse`), decoded, into a queue, from a thread (for the module's life)."""
     out: queue.Queue = queue.Queue()
+    opened = threading.Event()  # at the stream's first line: the adapter registers it before it answers
 
     def read() -> None:
         with httpx.stream("GET", url, timeout=None) as r:
             for line in r.iter_lines():
+                opened.set()
                 if line.startswith("data:"):
                     out.put(json.loads(line[5:]))
 
     threading.Thread(target=read, daemon=True).start()
-    time.sleep(0.3)
+    assert opened.wait(60), f"{url}: the stream did not open"
     return out
 
 
