@@ -168,21 +168,22 @@ def test_each_joint_is_a_series_in_rad_in_order(recording):
     assert not scalars(recording, "/things/ur10/properties/getJointposition/shoulder_pan_joint")
 
 
-def test_robot_is_drawn_from_its_urdf_at_its_base(recording):
+def test_robot_is_drawn_from_its_urdf_at_its_base_in_its_own_world(recording):
+    """A robot Thing of a lab without a world of its own: its own root, frame and link frames."""
     model = "/robots/ur10/model"
-    assert latest(recording, model, "CoordinateFrame:frame") == ["ur10/base_link"]
+    assert latest(recording, model, "CoordinateFrame:frame") == ["robots/ur10/base_link"]
     assert latest(recording, f"{model}/base", "Transform3D:translation")[0] == pytest.approx(list(BASE.p))
     assert latest(recording, f"{model}/base", "Transform3D:quaternion")[0] == pytest.approx(list(BASE.q))
-    assert latest(recording, f"{model}/base", "Transform3D:parent_frame") == ["tf#/world"]
-    assert latest(recording, f"{model}/base", "Transform3D:child_frame") == ["ur10/base_link"]
+    assert latest(recording, f"{model}/base", "Transform3D:parent_frame") == ["tf#/robots/ur10"]
+    assert latest(recording, f"{model}/base", "Transform3D:child_frame") == ["robots/ur10/base_link"]
     tf_static = static_values(recording, f"{model}/tf_static", "Transform3D:child_frame")
-    assert {f[0] for f in tf_static} >= {"ur10/shoulder_link", "ur10/wrist_3_link", "ur10/ee_link"}
+    assert {f[0] for f in tf_static} >= {"robots/ur10/shoulder_link", "robots/ur10/wrist_3_link", "robots/ur10/ee_link"}
     assert latest(recording, f"{model}/visual_geometries/upper_arm_link/visual_0", "Cylinders3D:fill_mode") == [3]
 
 
 def test_joint_transforms_follow_the_sweep(recording):
     entity = "/robots/ur10/model/joints/shoulder_pan_joint"
-    assert {f[0] for f in read_column(recording, entity, "Transform3D:child_frame")} == {"ur10/shoulder_link"}
+    assert {f[0] for f in read_column(recording, entity, "Transform3D:child_frame")} == {"robots/ur10/shoulder_link"}
     quaternions = [v[0] for v in read_column(recording, entity, "Transform3D:quaternion")]
     angles = [2 * math.atan2(z, w) for _, _, z, w in quaternions]  # the URDF's axis is +z
     assert angles == pytest.approx([0.0] + [math.radians(d) for d in SWEEP_DEG], abs=1e-5)
@@ -197,13 +198,13 @@ def test_workspace_points_are_split_by_collision_and_coloured(recording):
     assert rgb(latest(recording, f"{ws}/free", "Points3D:colors")[0]) == (40, 180, 70)
     assert rgb(latest(recording, f"{ws}/colliding", "Points3D:colors")[0]) == (220, 50, 40)
     for part in ("free", "colliding"):
-        assert latest(recording, f"{ws}/{part}", "CoordinateFrame:frame") == ["ur10/base_link"]
+        assert latest(recording, f"{ws}/{part}", "CoordinateFrame:frame") == ["robots/ur10/base_link"]
 
 
 def test_a_moves_swept_path_is_drawn_in_the_robots_base_frame(recording):
     strips = read_column(recording, "/robots/ur10/path", "LineStrips3D:strips")
     assert len(strips) == 1 and np.array(strips[0][0]) == pytest.approx(np.array(TIP_MM) / 1000, abs=1e-6)
-    assert latest(recording, "/robots/ur10/path", "CoordinateFrame:frame") == ["ur10/base_link"]
+    assert latest(recording, "/robots/ur10/path", "CoordinateFrame:frame") == ["robots/ur10/base_link"]
 
 
 def test_hull_is_a_see_through_mesh_in_the_base_frame(recording):
@@ -212,7 +213,7 @@ def test_hull_is_a_see_through_mesh_in_the_base_frame(recording):
     assert len(vertices) == stl_vertex_count(HULL_1)
     assert np.abs(np.array(vertices)).max() == pytest.approx(np.abs(XYZ_1[~COLLIDING_1]).max() / 1000, rel=1e-6)
     assert latest(recording, hull, "Mesh3D:albedo_factor")[0] & 0xFF < 255  # alpha
-    assert latest(recording, hull, "CoordinateFrame:frame") == ["ur10/base_link"]
+    assert latest(recording, hull, "CoordinateFrame:frame") == ["robots/ur10/base_link"]
 
 
 def test_a_republished_td_with_new_points_replaces_them(recording):
