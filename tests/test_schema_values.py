@@ -189,3 +189,28 @@ def test_a_refused_schema_stays_refused_and_a_served_one_never_fails():
             source.value({"type": "integer", "minimum": 5, "maximum": 3})
     for _ in range(200):
         assert why_invalid(source.value(HUE_OUTPUT), HUE_OUTPUT) is None
+
+
+def _corpus() -> list[tuple[str, object]]:
+    from devices.things.virtual import schemas_of
+
+    files = [p for folder in ("td-corpus", "reference-tds/real-lab", "tds") for p in sorted((DATA / folder).rglob("*"))
+             if p.suffix in (".json", ".jsonld") and "refused" not in p.parts]
+    return [(f"{p.relative_to(DATA)}#/{'/'.join(where)}", schema)
+            for p in files for schema, where in schemas_of(json.loads(p.read_text()))]
+
+
+def test_every_schema_of_the_published_corpus_gets_valid_values():
+    """Every property, action output and event data of every TD under tests/data (published TDs, the
+    real lab's, the TD Playground's examples, one TD per construct)."""
+    corpus = _corpus()
+    assert len(corpus) > 300
+    wrong = []
+    for seed in (0, 1):
+        source = SchemaValues(seed)
+        for where, schema in corpus:
+            for v in (source.value(schema, where) for _ in range(3)):
+                why = why_invalid(v, schema)
+                if why:
+                    wrong.append(f"{where}: {json.dumps(v)[:80]}: {why}")
+    assert wrong == [], "\n".join(wrong)

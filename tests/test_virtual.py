@@ -1,6 +1,7 @@
 """`twinmesh virtual`: any TD as a Thing on the mesh, proven with a corpus nobody here wrote.
 
-The corpus (tests/data/td-corpus, sources in tests/data/SOURCES.md, and the real lab's TDs) is
+The corpus (tests/data/td-corpus, sources in tests/data/SOURCES.md, the real lab's TDs, and one TD
+per JSON Schema construct of tests/data/tds/keywords) is
 served by one `twinmesh virtual` on a running lab; node-wot 0.9.2 then consumes each through the
 adapter, reads every readable property, writes every writable one and reads it back, invokes every
 action with a valid input drawn from its schema and subscribes to every event; every value that
@@ -23,15 +24,16 @@ from interop import npm
 from jsonschema import Draft7Validator
 from labs import start_lab
 
-from mesh.wot.schema_values import SchemaValues
 from mesh.wot.problem import BadInput
+from mesh.wot.schema_values import SchemaValues
 from mesh.wot.validate import validate
 
 pytestmark = [pytest.mark.lab, pytest.mark.interop, pytest.mark.timeout(900)]
 
 DATA = Path(__file__).parent / "data"
 CORPUS_DIRS = [DATA / "reference-tds" / "real-lab", *sorted(p for p in (DATA / "td-corpus").iterdir()
-                                                              if p.is_dir() and p.name != "refused")]
+                                                              if p.is_dir() and p.name != "refused"),
+               DATA / "tds" / "keywords"]  # one TD per JSON Schema construct (tests/data/tds/SOURCES.md)
 REFUSED = DATA / "td-corpus" / "refused"
 THING_TERMS = {"forms", "links", "base", "security", "securityDefinitions", "@context", "id", "title"}
 

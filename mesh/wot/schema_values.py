@@ -44,8 +44,12 @@ from mesh.wot.validate import validate
 ATTEMPTS = 48  # whole values tried when a schema is prepared
 POOL = 8  # distinct valid values kept per schema: the answer when a live draw misses
 LIVE_TRIES = 3  # live draws tried before the pool answers
-LOCAL_TRIES = 6  # tries of one sub-value before its parent gives up on it
-MAX_DEPTH = 24
+LOCAL_TRIES = 4  # tries of one sub-value before its parent gives up on it
+MAX_DEPTH = 48
+STEPS = 5000  # sub-values and strings built for one value at most (a 64-item array of triples takes 257)
+PLAN_STEPS = 30000  # ... and for the whole preparation of a schema
+FRUITLESS = 16  # values tried with none valid before a schema is given up
+MAX_SIZE = 2000  # items, characters or properties a value may be asked to have at least
 SPAN = 100  # how far an unbounded number ranges from its one bound (or from 0)
 TYPES = ("string", "integer", "number", "boolean", "object", "array", "null")
 COMBINATORS = ("allOf", "anyOf", "oneOf", "not", "if", "then", "else", "$ref", "definitions")
@@ -105,7 +109,8 @@ def _build_plan(schema: Any, key: bytes) -> _Plan:
     pool: list[bytes] = []
     hits = tries = 0
     reasons: dict[str, int] = {}
-    while tries < ATTEMPTS and len(pool) < POOL:
+    steps = 0
+    while tries < ATTEMPTS and len(pool) < POOL and steps < PLAN_STEPS and (pool or tries < FRUITLESS):
         tries += 1
         try:
             candidate = build.value(schema)
@@ -115,7 +120,13 @@ def _build_plan(schema: Any, key: bytes) -> _Plan:
         except (RecursionError, re.error, ValueError, TypeError, OverflowError) as e:
             reasons[f"cannot build a value ({type(e).__name__}: {e})"] = 1
             continue
-        if is_valid(candidate, schema):
+        finally:
+            steps += build.steps
+        try:
+            valid = is_valid(candidate, schema)
+        except Exception as e:  # the validator itself fails on this schema: inputs to it cannot be checked either
+            raise NoValue(f": the validator cannot check this schema ({type(e).__name__}: {e})") from None
+        if valid:
             hits += 1
             encoded = msgspec.json.encode(candidate)
             if encoded not in pool:
@@ -154,6 +165,7 @@ class SchemaValues:
     def initial(self, schema: dict[str, Any], where: str = "value") -> Any:
         """The schema's own value where it gives one (`const`, `default`, first `enum`, first of
         `examples`) and that value is valid; else a built one."""
+        _plan(schema, where)
         for term in ("const", "default"):
             if term in schema and is_valid(schema[term], schema):
                 return copy.deepcopy(schema[term])
@@ -173,10 +185,10 @@ class SchemaValues:
             for _ in range(LIVE_TRIES):
                 try:
                     candidate = self._build.value(schema)
+                    if is_valid(candidate, schema):
+                        return candidate
                 except (_Impossible, RecursionError, re.error, ValueError, TypeError, OverflowError):
                     continue
-                if is_valid(candidate, schema):
-                    return candidate
         return msgspec.json.decode(self.rng.choice(plan.pool))
 
     def drift(self, schema: dict[str, Any], value: Any) -> Any:
@@ -205,6 +217,10 @@ class _Impossible(Exception):
     pass
 
 
+class _GiveUp(_Impossible):
+    """Not worth another try of the same part: too deep, or out of steps."""
+
+
 class _Builder:
     """Builds one value for a conjunction of schemas that must hold and schemas that must not."""
 
@@ -214,19 +230,24 @@ class _Builder:
         self.rng = rng
         self._regex = rstr.Rstr(rng)
         self.root: Any = None
+        self.steps = 0
 
     def value(self, schema: Any) -> Any:
         self.root = schema
+        self.steps = 0
         return self._value([schema], [], 0)
 
     def _value(self, alls: list[Any], nots: list[Any], depth: int) -> Any:
+        self._step()
         if depth > MAX_DEPTH:
-            raise _Impossible(f"nested deeper than {MAX_DEPTH} levels")
+            raise _GiveUp(f"nested deeper than {MAX_DEPTH} levels (a $ref to itself that every value must follow?)")
         last: _Impossible | None = None
         for _ in range(LOCAL_TRIES):
             try:
                 flat, excluded = self._flatten(alls, nots)
                 candidate = self._typed(flat, excluded, depth)
+            except _GiveUp:
+                raise  # trying again would go as deep and cost as much
             except _Impossible as e:
                 last = e
                 continue
@@ -236,6 +257,11 @@ class _Builder:
                                                                           for n in excluded):
                 return candidate
         raise last or _Impossible("no value satisfies both what it must and must not match")
+
+    def _step(self) -> None:
+        self.steps += 1
+        if self.steps > STEPS:  # retries nest: without a bound, 4 tries a level over 48 levels
+            raise _GiveUp(f"gave up after {STEPS} steps")
 
     # --- the conjunction ---------------------------------------------------------------------------------
     def _flatten(self, alls: list[Any], nots: list[Any]) -> tuple[list[dict[str, Any]], list[Any]]:
@@ -368,11 +394,14 @@ class _Builder:
     def _string(self, flat: list[dict[str, Any]]) -> str:
         lo = max([int(s["minLength"]) for s in flat if _is_num(s.get("minLength"))] or [0])
         hi = min([int(s["maxLength"]) for s in flat if _is_num(s.get("maxLength"))] or [10**6])
+        if lo > MAX_SIZE:
+            raise _Impossible(f"minLength {lo} above the {MAX_SIZE} characters a virtual Thing builds")
         if lo > hi:
             raise _Impossible(f"minLength {lo} above maxLength {hi}")
         patterns = [s["pattern"] for s in flat if isinstance(s.get("pattern"), str)]
         formats = [s["format"] for s in flat if isinstance(s.get("format"), str) and s["format"] in _FORMATS]
-        for _ in range(20):
+        for _ in range(8):
+            self._step()
             if patterns:
                 s = self._from_pattern(self.rng.choice(patterns), lo, hi)
             elif formats:
@@ -382,7 +411,8 @@ class _Builder:
                 s = "".join(self.rng.choice(string.ascii_lowercase) for _ in range(n))
             if lo <= len(s) <= hi and all(re.search(p, s) for p in patterns):
                 return s
-        raise _Impossible(f"no string of {lo}..{hi} characters matches {' and '.join(patterns) or formats[0]}")
+        length = f" of {lo}..{hi} characters" if hi < 10**6 else f" of {lo}+ characters" if lo else ""
+        raise _Impossible(f"no string{length} matches {' and '.join(patterns) or formats[0]}")
 
     def _from_pattern(self, pattern: str, lo: int, hi: int) -> str:
         try:
@@ -457,6 +487,8 @@ class _Builder:
             lo = max(lo, 1)
         if lo > hi:
             raise _Impossible(f"minItems {lo} above maxItems {hi}")
+        if lo > MAX_SIZE:
+            raise _Impossible(f"minItems {lo} above the {MAX_SIZE} items a virtual Thing builds")
         n = self.rng.randint(lo, min(hi, lo + 3))
         holder = self.rng.randrange(n) if contains and n else -1
         out: list[Any] = []
@@ -503,6 +535,8 @@ class _Builder:
             if not added:
                 break
         shape = _Shape(pieces)
+        if shape.min_props > MAX_SIZE:
+            raise _Impossible(f"minProperties {shape.min_props} above the {MAX_SIZE} a virtual Thing builds")
         if len(shape.required) > shape.max_props:
             raise _Impossible(f"{len(shape.required)} required properties above maxProperties {shape.max_props}")
         optional = sorted(present - set(shape.required))
@@ -704,6 +738,8 @@ def _item_schemas(s: dict[str, Any], i: int) -> list[Any]:
 
 def _locally_valid(value: Any, schema: Any) -> bool:
     """`is_valid`, for a part of a schema: a `$ref` it cannot resolve alone is left to the whole schema's check."""
+    if isinstance(schema, dict) and b'"$ref"' in msgspec.json.encode(schema):
+        return True
     try:
         return is_valid(value, schema)
     except Exception:
