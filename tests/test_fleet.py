@@ -20,7 +20,7 @@ from devices.things.lights import light_td
 from devices.things.platform_things import twin_td
 from tests.labs import Lab, start_lab
 
-pytestmark = [pytest.mark.lab, pytest.mark.timeout(600)]
+pytestmark = [pytest.mark.lab, pytest.mark.slow, pytest.mark.timeout(600)]  # fleets of 60 to 240 devices
 
 
 @pytest.fixture(scope="module")

@@ -35,6 +35,8 @@ from tdgen.robot.kinematics import ForwardKinematics
 from tdgen.robot.model import Robot, RobotError
 from tdgen.robot.workspace import WorkspaceError
 
+pytestmark = pytest.mark.slow  # fifteen arms, each generated and solved 200 times
+
 TARGETS = 200
 TOL_MM = 0.01
 

@@ -12,7 +12,7 @@ import httpx
 import pytest
 from labs import REPO, free_port, stop_process
 
-pytestmark = pytest.mark.lab
+pytestmark = [pytest.mark.lab, pytest.mark.slow]  # a wheel, a fresh venv, an install
 
 # what the code reads beside its modules
 DATA = ["tdgen/robot/models/ur10.urdf", "tdgen/robot/models/uarm_swift_pro.urdf",
