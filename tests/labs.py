@@ -72,12 +72,16 @@ class Lab:
         waits for: no fixed time (a busy machine only makes it slower); `limit` is a last resort."""
         deadline = time.monotonic() + limit
         while True:
-            ready = self.cli("wait", "--timeout", "20", timeout=60)
-            if ready.returncode == 0:
-                return
+            try:
+                ready = self.cli("wait", "--timeout", "20", timeout=120)
+                said = ready.stderr
+                if ready.returncode == 0:
+                    return
+            except subprocess.TimeoutExpired:  # `wait` itself slow to start on a loaded machine: ask again
+                said = "`twinmesh wait` did not answer within 120 s"
             if self.proc.poll() is not None or time.monotonic() > deadline:
                 why = "the lab exited" if self.proc.poll() is not None else f"not ready after {limit:.0f} s"
-                raise AssertionError(f"{why}: {ready.stderr}\n--- lab log ---\n{self.log.read_text()[-4000:]}")
+                raise AssertionError(f"{why}: {said}\n--- lab log ---\n{self.log.read_text()[-4000:]}")
 
     def wait_things(self, names: set[str], timeout: float = 120.0) -> list[str]:
         """Poll `twinmesh things` until all `names` are listed (start-up of spawned processes)."""
