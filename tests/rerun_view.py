@@ -67,6 +67,10 @@ class ViewerPage:
         """Hosts other than this machine that the page asked for anything."""
         return {h for h in self.hosts if h not in LOCAL}
 
+    def save(self, path: Path) -> None:
+        """The page as it is now, to a PNG (what a failing test leaves to look at)."""
+        self.page.screenshot(path=str(path), timeout=180_000)
+
     def pixels(self) -> np.ndarray:
         """The page as it is drawn now, (height, width, 3) uint8."""
         from PIL import Image
@@ -86,6 +90,16 @@ def viewer_page(url: str) -> Iterator[ViewerPage]:
             yield ViewerPage(page, url)
         finally:
             page.close()
+
+
+def room_drawn(pixels: np.ndarray) -> bool:
+    """The 3D view (the left three fifths of the page) shows a scene: light walls and darker floor and
+    tables in many shades, not an empty panel nor the dark loading screen."""
+    h, w, _ = pixels.shape
+    area = pixels[h // 10: 9 * h // 10, : 3 * w // 5]
+    brightest = area.max(axis=2)
+    shades = len(np.unique(area.reshape(-1, 3) // 16, axis=0))
+    return float((brightest < 200).mean()) > 0.2 and float((brightest > 200).mean()) > 0.2 and shades > 100
 
 
 def colour_share(pixels: np.ndarray, rgb: tuple[int, int, int], tolerance: float = 0.12) -> float:

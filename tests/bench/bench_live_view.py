@@ -32,15 +32,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs, rerun_view
 
 from labs import start_lab  # noqa: E402
-from rerun_view import colour_share, viewer_page  # noqa: E402
+from rerun_view import colour_share, room_drawn, viewer_page  # noqa: E402
 
 COLOURS = {"magenta": ((255, 0, 255), {"r": 1, "g": 0, "b": 1}), "green": ((0, 255, 0), {"r": 0, "g": 1, "b": 0})}
 DRAWN_LIMIT, SHOWN_LIMIT = 900.0, 300.0
-
-
-def drawn(pixels) -> bool:
-    h, w, _ = pixels.shape
-    return float((pixels[h // 10: 9 * h // 10, : 3 * w // 5].max(axis=2) < 200).mean()) > 0.2
 
 
 def shown(pixels, rgb) -> bool:
@@ -113,11 +108,11 @@ def main(minutes: float, rounds: int) -> None:
         started = time.monotonic()
         threading.Thread(target=busy, args=(lab, stop), daemon=True).start()
         with viewer_page(url) as view:
-            first_drawn = until(lambda: drawn(view.pixels()), DRAWN_LIMIT, "the room in the first viewer")
+            first_drawn = until(lambda: room_drawn(view.pixels()), DRAWN_LIMIT, "the room in the first viewer")
             first, first_shots = colour_delays(lab, view, rounds)
         time.sleep(max(0.0, minutes * 60 - (time.monotonic() - started)))
         with viewer_page(url) as view:
-            late_drawn = until(lambda: drawn(view.pixels()), DRAWN_LIMIT, "the room in the late viewer")
+            late_drawn = until(lambda: room_drawn(view.pixels()), DRAWN_LIMIT, "the room in the late viewer")
             late, late_shots = colour_delays(lab, view, rounds)
         hours = (time.monotonic() - started) / 3600
         usage1 = {t: process_usage(session, t) for t in usage0}
