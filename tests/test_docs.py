@@ -245,6 +245,7 @@ PAGES = pages()
 
 
 @pytest.mark.lab
+@pytest.mark.timeout(1800)  # a page that starts a lab waits for it: minutes on a busy machine
 @pytest.mark.parametrize("page", PAGES, ids=[str(p.relative_to(REPO)) for p in PAGES])
 def test_every_block_of_the_page_works_as_shown(walk, page):
     walk.failures.clear()
