@@ -44,6 +44,11 @@ def kind(v) -> str:
     return {str: "string", list: "array", dict: "object"}[type(v)]
 
 
+def subset(names: list[str]) -> st.SearchStrategy[list[str]]:
+    return st.lists(st.booleans(), min_size=len(names), max_size=len(names)).map(
+        lambda keep: [n for n, k in zip(names, keep) if k])
+
+
 @st.composite
 def described(draw, v, depth: int = 0):
     """A schema `v` satisfies, from the keywords of its type."""
@@ -79,14 +84,14 @@ def described(draw, v, depth: int = 0):
             s["minItems"] = draw(st.integers(0, len(v)))
         if draw(st.booleans()):
             s["maxItems"] = len(v) + draw(st.integers(0, 3))
-        if draw(st.booleans()) and all(satisfies(v, {"uniqueItems": True}) for _ in [0]):
+        if draw(st.booleans()) and satisfies(v, {"uniqueItems": True}):
             s["uniqueItems"] = True
     elif t == "object" and depth < 3:
         names = sorted(v)
-        declared = draw(st.lists(st.sampled_from(names), unique=True)) if names else []
+        declared = draw(subset(names))
         if declared:
             s["properties"] = {k: draw(described(v[k], depth + 1)) for k in declared}
-            s["required"] = draw(st.lists(st.sampled_from(declared), unique=True))
+            s["required"] = draw(subset(declared))
         rest = [k for k in names if k not in declared]
         choice = draw(st.integers(0, 3))
         if choice == 1 and not rest:

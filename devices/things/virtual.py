@@ -115,7 +115,10 @@ class VirtualThing:
                 except NoValue as problem:
                     log.warning("%s", problem)
                     continue
-                self.thing.emit_event(event, value)
+                try:
+                    self.thing.emit_event(event, value)
+                except Exception:  # one lost firing; the Thing's other events and later firings go on
+                    log.exception("%s: event %s not emitted", self.name, event)
 
     def expose(self) -> "VirtualThing":
         self.thing.expose()
