@@ -5,7 +5,7 @@
   called free; a point never lies more than a voxel's diagonal plus `PAD` inside a box, so what
   keeps that far from every point is free.
 - A closed mesh that is convex stays one hull; a closed non-convex one is split into convex hulls
-  by V-HACD (pybullet's own); an open surface (a scanned room, one wall) stays a surface, a static
+  by CoACD; an open surface (a scanned room, one wall) stays a surface, a static
   triangle mesh, never filled to its hull.
 
 pybullet gives a body at most `MAX_PARTS` links and a compound shape few children, so each body's
@@ -30,8 +30,9 @@ from tdgen.robot.scan_io import read_cloud, read_mesh
 
 PAD = 0.006  # m each box grows: a sample within 5 mm of a scanned point collides (pybullet counts 0.1 mm deep)
 DEFAULT_VOXEL = 0.02  # m
+COACD_THRESHOLD = 0.05  # CoACD's concavity bound (of the mesh's size): lower makes more, tighter parts
 MAX_PARTS = 128  # pybullet's links per created body (127) and its base
-FORMAT = 3  # the cache entries' layout: a change makes old entries unused
+FORMAT = 4  # the cache entries' layout: a change makes old entries unused
 
 
 @dataclass
@@ -220,27 +221,18 @@ def _mesh(mesh) -> Prepared:
 
 
 def decompose(mesh) -> list[np.ndarray]:
-    """A closed mesh's convex parts (each its corners) by pybullet's V-HACD, at most `MAX_PARTS`."""
-    import pybullet as pb
+    """A closed mesh's convex parts (each its corners), at most `MAX_PARTS`, by CoACD (collision-aware:
+    a ring's hole stays open), which is several times quicker here than pybullet's V-HACD."""
+    import coacd
     import trimesh
 
-    with tempfile.TemporaryDirectory() as tmp:
-        src, out, log = (str(Path(tmp) / n) for n in ("in.obj", "out.obj", "log.txt"))
-        mesh.export(src)
-        client = pb.connect(pb.DIRECT)
-        try:
-            pb.vhacd(src, out, log, resolution=200000, maxNumVerticesPerCH=64, physicsClientId=client)
-        finally:
-            pb.disconnect(client)
-        loaded = trimesh.load(out, split_object=True, group_material=False, process=False)
-    pieces = list(loaded.geometry.values()) if hasattr(loaded, "geometry") else [loaded]
-    hulls = [np.asarray(p.vertices) for p in pieces if len(p.vertices) >= 4]  # type: ignore[union-attr]
-    if not hulls:  # V-HACD found nothing: the whole hull, which is too much but never too little
-        return [np.asarray(mesh.convex_hull.vertices)]
-    while len(hulls) > MAX_PARTS:  # join the two smallest: still hulls, a little larger
-        hulls.sort(key=len)
-        a, b = hulls.pop(0), hulls.pop(0)
-        hulls.append(np.asarray(trimesh.convex.convex_hull(np.vstack([a, b])).vertices))
+    coacd.set_log_level("error")
+    parts = coacd.run_coacd(coacd.Mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)), threshold=COACD_THRESHOLD,
+                            max_convex_hull=MAX_PARTS, preprocess_mode="off", resolution=1000, mcts_iterations=50,
+                            mcts_max_depth=2, seed=0)
+    hulls = [np.asarray(v) for v, _ in parts if len(v) >= 4]
+    if not hulls:  # nothing found: the whole hull, which is too much but never too little
+        return [np.asarray(trimesh.convex.convex_hull(mesh.vertices).vertices)]
     return hulls
 
 
