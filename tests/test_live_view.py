@@ -54,6 +54,7 @@ def magenta_pixels(pixels: np.ndarray) -> int:
 
 
 @pytest.mark.browser
+@pytest.mark.timeout(DRAWN_TIMEOUT + SHOWN_TIMEOUT + 600)  # the lab's start besides
 def test_the_live_view_draws_the_lab_and_a_lamp_in_the_colour_it_is_switched_on_in(lab):
     invoke(lab, "invoke", "light-left", "switchOff")
     with viewer_page(view_url(lab)) as view:

@@ -120,6 +120,7 @@ def test_the_replay_page_is_served_on_loopback_with_a_policy_that_keeps_it_here(
 
 @pytest.mark.browser
 @pytest.mark.slow
+@pytest.mark.timeout(1200)  # a software rasteriser on a busy machine needs minutes for its first frame
 def test_a_replay_draws_the_recording_in_the_browser_and_asks_no_other_host(replaying):
     with viewer_page(replaying.url) as view:
         eventually(lambda: colour_share(view.pixels(), MAGENTA) > 0.001, timeout=900, interval=5.0,
