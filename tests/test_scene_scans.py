@@ -121,16 +121,30 @@ def scanned_world(scan, tmp_path_factory):
     robot = Robot.load("ur10.urdf")
     truth = Truth(robot, scene, scan.world(), msgspec.structs.replace(scene, bodies=scene.bodies[:1]))
     world = CollisionWorld(robot, scene)
-    yield robot, world, truth
+    yield robot, scene, world, truth
     world.close()
     truth.close()
 
 
 def test_near_a_scanned_point_is_never_free_far_from_all_is(scanned_world):
-    robot, world, truth = scanned_world
+    robot, _, world, truth = scanned_world
     qs = np.random.default_rng(5).uniform(robot.lows(), robot.highs(), (400, len(robot.lows())))
     exact = truth.figures(qs, world.colliding(qs))
     fast = truth.figures(qs, FastCollision(world).colliding(qs))
     for figures in (exact, fast):
         assert figures.near > 20 and figures.near_free == 0
         assert figures.far > 20 and figures.far_share >= 0.99
+
+
+def test_the_twins_target_check_refuses_what_comes_near_a_scanned_point(scanned_world):
+    from devices.planning.moves import MovePlanner, TdFrame
+
+    robot, scene, _, truth = scanned_world
+    planner = MovePlanner(robot, "ur10", scene, TdFrame(), peak_speed=1.5)
+    try:
+        qs = np.random.default_rng(6).uniform(robot.lows(), robot.highs(), (200, len(robot.lows())))
+        figures = truth.figures(qs, np.array([planner.collides(q) for q in qs]))
+    finally:
+        planner.close()
+    assert figures.near > 10 and figures.near_free == 0
+    assert figures.far > 10 and figures.far_share >= 0.99
