@@ -71,6 +71,23 @@ def test_every_zoo_arm_gets_the_exact_tests_answers(name):
     assert called_sure_free == 0, f"{called_sure_free} samples called colliding are free"
 
 
+@pytest.mark.parametrize("name", ["ur10 beside tilted boxes", "uarm iot-platform"])
+def test_a_planners_checks_on_the_packed_tables_get_the_sampling_loops_verdicts(name):
+    """A planner's loop (one thread, the tables packed in three arrays and unpacked by name) and the sampling
+    loop (all cores, the tables as they are) give every state the same verdict, a passive linkage's too."""
+    robot, scene = _lab_arms()[name]
+    world = CollisionWorld(robot, scene)
+    try:
+        fast = FastCollision(world)
+        q = random_configurations(robot, SAMPLES, 12)
+        everywhere = fast.spheres.verdicts(q)
+        assert np.array_equal(fast.spheres.verdicts_here(q), everywhere)
+        assert [fast.spheres.verdict(state) for state in q[:50]] == list(everywhere[:50])
+        assert set(np.unique(everywhere)) == {FREE, COLLIDES, UNSURE}
+    finally:
+        world.close()
+
+
 @pytest.mark.parametrize("name", sorted(_lab_arms()))
 def test_the_lab_arms_get_the_exact_tests_answers_and_most_need_no_exact_test(name):
     robot, scene = _lab_arms()[name]

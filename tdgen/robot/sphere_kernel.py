@@ -36,8 +36,10 @@ def _move(rot, pos, k, p, out, i):
 @njit(cache=True, inline="always", fastmath=FAST)
 def _frames(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, rot, pos, tmp):
     count = parent.shape[0]
-    rot[0] = base_r
-    pos[0] = base_p
+    for r in range(3):  # element by element: no array copy, so no allocation (`_block` runs without numba's runtime)
+        pos[0, r] = base_p[r]
+        for c in range(3):
+            rot[0, r, c] = base_r[r, c]
     for k in range(1, count):
         up = parent[k]
         for r in range(3):
@@ -59,7 +61,9 @@ def _frames(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, rot,
                 rot[k, r, 1] = a * m01 + b * m11 + d * m21
                 rot[k, r, 2] = a * m02 + b * m12 + d * m22
         else:
-            rot[k] = tmp
+            for r in range(3):
+                for c in range(3):
+                    rot[k, r, c] = tmp[r, c]
             if kind[k] == 2:
                 for r in range(3):
                     pos[k, r] += (tmp[r, 0] * axis[k, 0] + tmp[r, 1] * axis[k, 1] + tmp[r, 2] * axis[k, 2]) * values[k]
@@ -491,17 +495,18 @@ def tips(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, tip):
     return out
 
 
-@njit(cache=True, fastmath=FAST)
-def _block(lo, hi, values, t, pad, sure_depth, tip, tips_out, out):
-    """Configurations lo..hi on one core: one call per block, the model inlined (a call per configuration
-    passed fifty arrays, counting references to each: a third of the time of a configuration far from
-    everything)."""
-    s = _scratch(t)
-    still = np.zeros(t.parent.shape[0] + t.pairs.shape[0])  # no growth: links, then self pairs
+# The loops over configurations run without numba's reference counting (`_nrt=False`): the model's helpers take
+# the tables and working arrays whole (`t`, `s`), and each such call would count a reference to each of their
+# sixty arrays, twice, several times per configuration: four times the time of a configuration. The arrays are
+# made and held by the callers, which count them once.
+@njit(cache=True, fastmath=FAST, _nrt=False)  # type: ignore[call-overload]
+def _block(lo, hi, values, t, s, still, pad, sure_depth, tip, tips_out, out):
+    """Configurations lo..hi on one core: one call per block, the model inlined."""
     for c in range(lo, hi):
         out[c] = _one(values[c], t, s, pad, sure_depth, still)
         if tip >= 0:  # the tip's position from the same frames: the sampled points
-            tips_out[c] = s.pos[tip]
+            for r in range(3):
+                tips_out[c, r] = s.pos[tip, r]
 
 
 @njit(cache=True, parallel=True, nogil=True, fastmath=FAST)
@@ -511,7 +516,10 @@ def verdicts(values, t, pad, sure_depth, tip, tips_out):
     out = np.zeros(n, dtype=np.int8)
     per_block = (n + BLOCKS - 1) // BLOCKS
     for block in prange(BLOCKS):
-        _block(block * per_block, min(n, (block + 1) * per_block), values, t, pad, sure_depth, tip, tips_out, out)
+        s = _scratch(t)
+        still = np.zeros(t.parent.shape[0] + t.pairs.shape[0])  # no growth: links, then self pairs
+        _block(block * per_block, min(n, (block + 1) * per_block), values, t, s, still, pad, sure_depth, tip, tips_out,
+               out)
     return out
 
 
@@ -562,13 +570,18 @@ def verdicts_packed(q, passive, main_map, passive_map, offsets, floats, ints, me
     microseconds instead of fifty arrays' and a numpy product's worth. One state is one row: one piece of
     code to compile, not two."""
     t = _unpacked(floats, ints, meta)
-    s = _scratch(t)
-    values = np.empty(offsets.shape[0])
     out = np.empty(q.shape[0], dtype=np.int8)
+    _rows(q, passive, main_map, passive_map, offsets, t, _scratch(t), np.empty(offsets.shape[0]), pad, sure_depth,
+          grow, out)
+    return out
+
+
+@njit(cache=True, fastmath=FAST, _nrt=False)  # type: ignore[call-overload]
+def _rows(q, passive, main_map, passive_map, offsets, t, s, values, pad, sure_depth, grow, out):
+    """`verdicts_packed`'s loop, without reference counting (as `_block`)."""
     for c in range(q.shape[0]):
         _values(q[c], passive[c], main_map, passive_map, offsets, values)
         out[c] = _one(values, t, s, pad, sure_depth, grow)
-    return out
 
 
 @njit(cache=True, inline="always", fastmath=FAST)
