@@ -363,10 +363,11 @@ class FastCollision:
         self.world.close()
 
 
-def compile_all() -> None:
+def compile_all(wait: bool = True) -> None:
     """Compile (or load) every compiled function a lab runs, on a UR10 in table-and-wall (one specialisation
     serves every robot and scene: `sphere_kernel.as_tables`), then write `cores.compiled_stamp()`. Another
-    process already at it (a lock on the stamp's folder): nothing to do."""
+    process already at it (a lock on the stamp's folder): wait for it (then load), or with `wait` false
+    leave it to that one."""
     import fcntl
 
     from tdgen.robot import points_csv
@@ -377,7 +378,7 @@ def compile_all() -> None:
     folder.mkdir(parents=True, exist_ok=True)
     with open(folder / "twinmesh-compiling.lock", "w") as lock:
         try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(lock, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
         except BlockingIOError:
             return
         robot = Robot.load("ur10.urdf")
@@ -395,4 +396,4 @@ def compile_all() -> None:
 
 
 if __name__ == "__main__":  # `cores.compile_in_background`
-    compile_all()
+    compile_all(wait=False)
