@@ -148,3 +148,15 @@ def test_the_twins_target_check_refuses_what_comes_near_a_scanned_point(scanned_
         planner.close()
     assert figures.near > 10 and figures.near_free == 0
     assert figures.far > 10 and figures.far_share >= 0.99
+
+
+def test_merged_boxes_cover_exactly_the_occupied_voxels():
+    from tdgen.robot.scan_bodies import merge_cells
+
+    rng = np.random.default_rng(2)
+    cells = np.unique(np.vstack([rng.integers(0, 12, (300, 3)), np.argwhere(np.ones((6, 5, 1), dtype=bool))]), axis=0)
+    lo, hi = merge_cells(cells)
+    covered = [tuple(c) for a, b in zip(lo, hi) for c in np.argwhere(np.ones(b - a + 1, dtype=bool)) + a]
+    assert len(covered) == len(set(covered)) == len(cells)  # no voxel twice
+    assert set(covered) == {tuple(c) for c in cells}
+    assert len(lo) < len(cells) - 20  # the 6 x 5 slab is a few boxes, not 30
