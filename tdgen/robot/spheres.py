@@ -357,7 +357,13 @@ def matches(elements: list[Convex], lo, hi) -> bool:
 
 def scene_elements(pb, client: int, body: int) -> list[Convex]:
     """A scene body's collision elements in the world frame: its boxes, spheres and cylinders as pybullet
-    holds them; any other shape, or a link whose shapes do not match pybullet's AABB, as that AABB."""
+    holds them; any other shape, or a link whose shapes do not match pybullet's AABB, as that AABB. A scan
+    (`scan_bodies`): its padded boxes, where pybullet holds their surface in a few big triangle meshes."""
+    from tdgen.robot.scan_bodies import fast_elements
+
+    known = fast_elements(pb, client, body)
+    if known is not None:
+        return known
     out = []
     for link in range(-1, pb.getNumJoints(body, physicsClientId=client)):
         lo, hi = pb.getAABB(body, link, physicsClientId=client)
