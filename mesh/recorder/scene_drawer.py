@@ -27,8 +27,10 @@ Entities (frames: `tf#/world` is the scene frame; robot `r`'s links are the fram
   `mesh.recorder.mapping`, logged when it changes;
 - `robots/<r>/...`: robot Things (see `mesh.recorder.robots`): those of this world in its frame,
   those simulated apart each in its own world (`tf#/robots/<r>`), never in this room.
-Poses are stamped on three timelines: `time` (wall clock), `seq` (the recorder's message number)
-and `sim_time` (the world's simulated seconds).
+A joint value or a body pose equal to the one logged last is not logged again: the world sends every
+joint of every robot with each sample, and an idle robot would cost as much as a moving one (Rerun
+keeps the last value until the next). Poses are stamped on three timelines: `time` (wall clock),
+`seq` (the recorder's message number) and `sim_time` (the world's simulated seconds).
 """
 from __future__ import annotations
 
@@ -200,6 +202,8 @@ class SceneDrawer:
         self._poses: dict[str, SampleBatch] = {}  # body name or robot name (its base) -> poses
         self._states: dict[tuple[str, str], Any] = {}
         self._shown: dict[str, tuple[int, ...]] = {}  # body showing a light -> the colour it was drawn in
+        self._joint_values: dict[tuple[str, str], float] = {}  # the last value logged per joint
+        self._body_poses: dict[str, Pose] = {}  # the last pose logged per moving body
         self._styled: dict[str, str] = {}  # joint series -> the unit its name was logged with
         self._rows = 0
         self._oldest: float | None = None  # monotonic time of the oldest unwritten row
@@ -263,14 +267,18 @@ class SceneDrawer:
     def add_poses(self, poses: Poses, wall: float, seq: int) -> list[Entry]:
         """Queue one sample's joints and body poses; returns the logs for the states that changed."""
         self.sim_time = sim = poses.time
-        for robot, joints in poses.joints.items():
-            for joint, value in joints.items():
+        for robot, joints in poses.joints.items():  # every joint of every robot comes each time: the
+            for joint, value in joints.items():     # unchanged ones are not logged again (they hold)
+                if self._joint_values.get((robot, joint)) == value:
+                    continue
+                self._joint_values[(robot, joint)] = float(value)
                 batch = self._joints.get((robot, joint))
                 if batch is None:
                     batch = self._joints[(robot, joint)] = SampleBatch()
                 batch.add(wall, seq, sim, float(value))
         for name, pose in poses.bodies.items():
-            self._batch_pose(name, pose, wall, seq)
+            if self._body_poses.get(name) != pose:
+                self._batch_pose(name, pose, wall, seq)
         out: list[Entry] = []
         for device, state in poses.states.items():
             changed = False
@@ -300,6 +308,7 @@ class SceneDrawer:
         return Entry(body_path(body.name), _ARCHETYPES[body.shape].from_fields(colors=[colour]))
 
     def _batch_pose(self, name: str, pose: Pose, wall: float, seq: int) -> None:
+        self._body_poses[name] = pose
         batch = self._poses.get(name)
         if batch is None:
             batch = self._poses[name] = SampleBatch()
@@ -326,7 +335,8 @@ class SceneDrawer:
         path = joint_value_path(robot_name, joint)
         unit = robot.unit(joint) if robot is not None else "rad"
         if self._styled.get(path) != unit:  # again once the URDF tells a prismatic joint
-            self.rec.log(path, rr.SeriesLines(names=[f"{joint} ({unit})"]), static=True)
+            self.rec.log(path, rr.SeriesLines(names=[f"{joint} ({unit})"], interpolation_mode="StepAfter"),
+                         static=True)
             self._styled[path] = unit
         self.rec.send_columns(path, indexes, rr.Scalars.columns(scalars=np.array(batch.values)))
         if robot is not None:
