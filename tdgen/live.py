@@ -8,8 +8,7 @@ body: their self- and other collisions are known to be none), and a sample colli
 in the base or touches an added body. Adding a body checks the base-free samples against it alone;
 removing an added body checks nothing; moving one is a removal and an addition. A change to the base
 itself (its table removed) needs a generation. The flags are those a generation from scratch finds
-(the tests compare them): for the UR10's 80,000 samples and a box on its table, some 50 ms to add, a
-few to remove, where generating again takes 0.3 s or more.
+(the tests compare them), in a fraction of a generation's time (docs/benchmarks.md: live updates).
 """
 from __future__ import annotations
 
@@ -51,7 +50,7 @@ def _take(bodies: list[Body], wanted: Counter[bytes]) -> list[Body]:
 
 class Worlds:
     """The collision worlds a robot's live updates ask, kept between updates (loading the robot and the
-    room costs some 15 ms each time): one with only the body being checked, without self-collision
+    room each time would be on every update's way): one with only the body being checked, without self-collision
     (`touching`), one of the whole scene now and one of the base (which pairs collide, for the TD's
     warnings)."""
 
@@ -194,7 +193,7 @@ class LiveSamples:
 
     def prepare(self) -> None:
         """Load the kept worlds, hash the samples and ask what collides in the base's first samples now,
-        between updates, so that the first update does not wait for them (some 50 ms)."""
+        between updates, so that the first update does not wait for them."""
         from tdgen.generate import PAIR_SAMPLES
 
         self.base_flags.samples_sha  # noqa: B018 - hashed once here, not in the first update's digest
@@ -202,7 +201,7 @@ class LiveSamples:
             self.worlds.base_pairs(int(row), self.base_samples.q[row])
         self.worlds.at_rest()
         part = self.worlds.part([])
-        if self.model == "fast":  # the robot's spheres for a world of parts, fitted once per robot (~30 ms)
+        if self.model == "fast":  # the robot's spheres for a world of parts, fitted once per robot
             from tdgen.robot.fast_collision import FastCollision
 
             FastCollision(part)

@@ -205,7 +205,7 @@ class TdgenService:
 
     def _digest(self, robot: str) -> bytes:
         """`<robot>.flags`: the digest of its points.csv (`points_csv.Flags.digest`), with which a robot that
-        holds the previous file makes the new one after a scene change instead of fetching 7.5 MB."""
+        holds the previous file makes the new one after a scene change instead of fetching the whole file."""
         from tdgen.robot import points_csv
 
         with self._lock:
@@ -331,7 +331,7 @@ class TdgenService:
         log.info("%s: artefacts ready (%s, %.3f s, version %d, hash %s)", twin.robot,
                  "cached" if cached else "followed live" if following else "generated", seconds, twin.version, key)
         self.thing.emit_event("generated", {"robot": twin.robot, "hash": key, "version": twin.version})
-        if unwritten is not None:  # on disk once the robot has them (7.5 MB: 2-16 ms, not in its way)
+        if unwritten is not None:  # on disk once the robot has them (not in its way)
             self._writing.submit(self._write_entry, twin.robot, key, unwritten)
         kept = self.follower.follow(twin, key, following or (self.follower.held(twin, *generated[0]) if generated else None))
         if kept is not None:

@@ -107,7 +107,7 @@ CONNECT_NOTE = ("The lab: --connect ENDPOINT before the command (twinmesh --conn
                    "link then costs segments and descriptors).")
 @click.option("--secure", is_flag=True, show_envvar=True,
               help="A secure lab: Zenoh over TLS with mutual authentication and access control, HTTP with a token. "
-                   "`up --secure` makes the lab's secrets on first use; other commands find them (same account).")
+                   "`twinmesh --secure up` makes the lab's secrets on first use; other commands find them (same account).")
 @click.option("--secrets", type=click.Path(file_okay=False), metavar="DIR", show_envvar=True,
               help="Where a secure lab's secrets are (implies --secure) [default: $XDG_DATA_HOME/twinmesh/secrets, "
                    "else ~/.local/share/twinmesh/secrets].")
@@ -139,7 +139,7 @@ def _secrets_dir(ctx: click.Context, secure: bool, secrets: str | None) -> str |
     folder = Path(secrets) if secrets else default_secrets_dir()
     # `up` makes them; `wait` may be started beside `up` and waits for them too
     if ctx.invoked_subcommand not in ("up", "wait", None) and not (folder / "ca.pem").exists():
-        raise usage_exit(f"no lab secrets in {folder} (no ca.pem): start the lab with `twinmesh up --secure` "
+        raise usage_exit(f"no lab secrets in {folder} (no ca.pem): start the lab with `twinmesh --secure up` "
                          f"on this account, or give --secrets DIR (a copy of the lab's)")
     return str(folder)
 

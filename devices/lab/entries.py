@@ -2,8 +2,8 @@
 
 A `ProcessSpec` holds one of these functions itself (never a `module:function` string: a typo fails at
 import and in mypy, not after a spawn). Each imports its part inside, so that `twinmesh up`, which
-only starts and watches processes, does not load pybullet, Rerun or Starlette itself (about 1 s and
-85 MB); spawn pickles the function by reference and the child imports this light module.
+only starts and watches processes, does not load pybullet, Rerun or Starlette itself (a second and
+tens of MB); spawn pickles the function by reference and the child imports this light module.
 """
 from __future__ import annotations
 

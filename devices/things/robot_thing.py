@@ -142,7 +142,7 @@ class RobotThing:
         self.publisher.start()
         self.publisher.flush()
         # the world a box about to be put down is checked in (`RobotTwin.would_touch`), loaded now, not by the
-        # first addObstacle (some 15-30 ms on its way)
+        # first addObstacle (on its way)
         self._worker.submit(self.twin.would_touch, [])
         return self
 
@@ -227,7 +227,7 @@ class RobotThing:
         try:
             wanted = ["td.json", *(a for a in ARTEFACTS if a != "points.csv")]
             digest = self._fetching.submit(self._digest) if self._flags is not None else None
-            files = dict(zip(wanted, self._fetching.map(self._service_file, wanted)))  # at once: ~10 ms sooner
+            files = dict(zip(wanted, self._fetching.map(self._service_file, wanted)))  # at once, not one after another
             made = self._points_from_digest(digest.result() if digest is not None else None)
             points = None if made is not None else self._service_file("points.csv")  # made: its bytes when asked for
             workspace, flags = self._workspace_of(points, made)
@@ -273,7 +273,7 @@ class RobotThing:
 
     def _points_from_digest(self, digest: bytes | None) -> points_csv.Flags | None:
         """The new points.csv made from the one served now and the service's digest of the new one (its
-        collision flags and sha256): the same samples after a scene change, without fetching 7.5 MB."""
+        collision flags and sha256): the same samples after a scene change, without fetching the whole file."""
         if self._flags is None or digest is None:
             return None
         return self._flags.from_digest(digest)

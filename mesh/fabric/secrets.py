@@ -100,7 +100,7 @@ class LabSecrets:
             return cert, key
         if not self.ca.exists():
             raise SecretsError(f"no lab secrets in {self.dir} (no ca.pem): start the lab with "
-                               f"`twinmesh up --secure` (or give --secrets DIR)")
+                               f"`twinmesh --secure up` (or give --secrets DIR)")
         with self._lock():
             if not (cert.exists() and key.exists()):
                 self._issue(role)

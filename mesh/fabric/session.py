@@ -152,7 +152,7 @@ def one_shot_session(settings: MeshSettings, mode_given: bool = False, service: 
     unreachable = (f"no lab reachable at {', '.join(settings.connect)} (is `twinmesh up` running? a lab started "
                    "with --secure needs --secure here too)" if settings.secrets is None else
                    f"no secure lab reachable at {', '.join(settings.connect)} with the credentials in "
-                   f"{settings.secrets} (is `twinmesh up --secure` running there, with these secrets?)")
+                   f"{settings.secrets} (is `twinmesh --secure up` running there, with these secrets?)")
     with ExitStack() as stack:
         try:
             session = stack.enter_context(open_session(settings, service=service))

@@ -9,7 +9,7 @@ range of a double (valid JSON, 400 digits) is refused.
 Valid values, the common case, are let through by fastjsonschema's generated code (about ten
 times faster); jsonschema decides whenever that code refuses, and alone for schemas with a
 `format` (the two libraries check formats differently) or values holding an integer too large.
-jsonschema is loaded at the first schema compiled (30 ms a process that validates nothing, such as
+jsonschema is loaded at the first schema compiled (an import a process that validates nothing, such as
 `twinmesh tdgen`, need not pay).
 """
 from __future__ import annotations
@@ -70,10 +70,10 @@ def validate(value: Any, schema: Schema, path: str = "input") -> None:
 
 def prepare(td: ThingDescription) -> None:
     """Compile the input schemas of the TD's actions on a background thread, so that an action's first
-    call does not wait for it (a few ms each, in the adapter and again in the device: a lab's first
-    `addObstacle` reached its device 12 ms later than the next ones). Identical schemas compile once.
+    call does not wait for it (in the adapter and again in the device: without it a lab's first
+    `addObstacle` reached its device later than the next ones). Identical schemas compile once.
     For a Thing's first TD only: a robot's TD regenerated after each scene change has new bounds in its
-    inputs, and compiling them at once competed with serving it (the TD served 8 ms later)."""
+    inputs, and compiling them at once competed with serving it."""
     inputs = [action.input for action in td.actions.values() if action.input is not None]
     if inputs:
         waiting = _compiler()
