@@ -134,6 +134,8 @@ def test_near_a_scanned_point_is_never_free_far_from_all_is(scanned_world):
     for figures in (exact, fast):
         assert figures.near > 20 and figures.near_free == 0
         assert figures.far > 20 and figures.far_share >= 0.99
+    only_scan = [q for q, hit, other in zip(qs, world.colliding(qs), truth.free.colliding(qs)) if hit and not other]
+    assert only_scan and all(any(pair.endswith("/ scan") for pair in world.what_collides(q)) for q in only_scan[:5])
 
 
 def test_the_twins_target_check_refuses_what_comes_near_a_scanned_point(scanned_world):

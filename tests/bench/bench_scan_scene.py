@@ -28,8 +28,10 @@ from pathlib import Path
 
 import msgspec
 
-from tdgen.robot.surroundings import load_scene
-from tests.scans import render_scan, write_pcd
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository: tests.scans
+
+from tdgen.robot.surroundings import load_scene  # noqa: E402
+from tests.scans import render_scan, write_pcd  # noqa: E402
 
 
 def _command(args: list[str], env: dict[str, str]) -> float:
