@@ -32,9 +32,9 @@ def recording(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("replay") / "lamp.rrd"
     rec = rr.RecordingStream("twinmesh")
     rec.save(str(path))
-    scene = SceneDescription("bench", bodies=[
-        Body("table", "box", (1.0, 0.6, 0.75), Pose((0.0, 0.0, 0.375)), (0.55, 0.45, 0.35)),
-        Body("lamp-shade", "box", (0.3, 0.3, 0.15), Pose((0.0, 0.0, 0.9)), (0.35, 0.35, 0.35), shows="lamp")])
+    scene = SceneDescription("bench", bodies=[  # the lamp at the origin, where a scene without robots is looked at
+        Body("table", "box", (0.4, 0.4, 0.1), Pose((0.0, 0.0, -0.15)), (0.55, 0.45, 0.35)),
+        Body("lamp-shade", "box", (0.3, 0.3, 0.15), Pose((0.0, 0.0, 0.0)), (0.35, 0.35, 0.35), shows="lamp")])
     drawer = SceneDrawer(rec)
     drawer.draw_scene(SceneFiles(scene, {}), time.time(), 0)
     rec.set_time("sim_time", duration=1.0)
