@@ -26,6 +26,7 @@ from mesh.http.problems import unavailable
 from mesh.wot.invocation import ActionStatus
 from mesh.wot.problem import Conflict, NotFound
 from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
+from mesh.wot.validate import SourceSchemas
 
 
 def _now() -> str:
@@ -37,6 +38,7 @@ class FakeThing:
     """A Thing as a device would serve it: its TD, its property values, action handlers, files."""
 
     td: ThingDescription
+    schemas: SourceSchemas
     values: dict[str, Any] = field(default_factory=dict)
     actions: dict[str, Callable[[Any], Any]] = field(default_factory=dict)
     readers: dict[str, Callable[[], Any]] = field(default_factory=dict)
@@ -61,7 +63,7 @@ class FakeRegistry:
     # --- set-up by the tests
     def add(self, td: dict[str, Any], **kwargs: Any) -> FakeThing:
         td.setdefault("id", thing_id(td["title"]))
-        thing = FakeThing(decode_td(td), **kwargs)
+        thing = FakeThing(decode_td(td), SourceSchemas(td), **kwargs)
         self.things[td["title"]] = thing
         return thing
 
@@ -103,6 +105,9 @@ class FakeRegistry:
 
     async def td(self, thing: str) -> ThingDescription:
         return self._entry(thing).td
+
+    def schemas(self, thing: str) -> SourceSchemas:
+        return self._entry(thing).schemas
 
     def render(self, thing: str, base: str, make: Callable[[ThingDescription, dict | None], bytes]) -> bytes:
         return make(self._entry(thing).td, None)

@@ -45,7 +45,7 @@ from mesh.wot.invocation import ID, Invocations
 from mesh.wot.payload import decode_json
 from mesh.wot.problem import BadInput, NotAllowed, NotFound, Problem
 from mesh.wot.thing_description import ThingDescription, decode_td, keep_terms, zenoh_forms
-from mesh.wot.validate import prepare, validate
+from mesh.wot.validate import SourceSchemas, prepare, validate
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +89,7 @@ class ExposedThing:
         self.keys = keys or Keys()
         self._source = td if isinstance(td, dict) else None
         self.td = decode_td(td) if isinstance(td, dict) else td
+        self._schemas = SourceSchemas(self._source)  # inputs checked against the whole schema the document states
         self._reads: dict[str, Read] = {}
         self._writes: dict[str, Write] = {}
         self._actions: dict[str, Act] = {}
@@ -311,7 +312,7 @@ class ExposedThing:
         if aff.readOnly or prop not in self._writes:
             raise NotAllowed(f"property {prop!r} of {self.name} is read-only")
         value = decode_json(payload, f"the value for {prop!r}")
-        validate(value, aff, path=prop)
+        validate(value, self._schemas.of(aff, "properties", prop), path=prop)
         self._writes[prop](value)
         return None
 
@@ -343,7 +344,7 @@ class ExposedThing:
             if not payload:
                 raise BadInput(f"action {action!r} needs an input")
             value = decode_json(payload, f"the input of {action!r}")
-            validate(value, aff.input, path="input")
+            validate(value, self._schemas.of(aff.input, "actions", action, "input"), path="input")
         return value
 
     def _perform(self, action: str, value: Any) -> Any:

@@ -47,7 +47,8 @@ def _located(request: Request, thing: str, status: ActionStatus) -> tuple[str, b
 async def invoke_action(request: Request) -> Response:
     thing, name, action = await affordance(request, "actions")
     asynchronous = _wants_async(request)
-    value = await read_input(request, action.input, "input")
+    value = await read_input(request, registry(request).schemas(thing).of(action.input, "actions", name, "input"),
+                             "input")
     if action.input is None:
         if value is not ABSENT and value is not None:
             raise BadInput(f"action {name!r} takes no input")

@@ -45,7 +45,7 @@ from mesh.wot.invocation import ActionStatus
 from mesh.wot.payload import JSON_ERRORS, decode_json
 from mesh.wot.problem import BadGateway, BadInput, NotFound, Problem, Unavailable
 from mesh.wot.thing_description import ThingDescription, decode_td
-from mesh.wot.validate import prepare, validate
+from mesh.wot.validate import SourceSchemas, prepare, validate
 
 log = logging.getLogger(__name__)
 PUBLICATIONS_WAITING = 100_000  # samples the adapter holds before it drops the oldest (a burst, or an overload)
@@ -65,6 +65,7 @@ class ThingEntry:
     td: ThingDescription | None = None
     td_error: str | None = None
     source: dict[str, Any] | None = None  # the TD as the Thing serves it: terms the model does not hold
+    schemas: SourceSchemas = field(default_factory=lambda: SourceSchemas(None))  # values checked against these
     generation: int = 0  # bumped on each join: a stale TD fetch must not win
     fetch: asyncio.Task | None = None
     values: dict[str, _Cached] = field(default_factory=dict)
@@ -255,7 +256,8 @@ class Registry:
         affordance = entry.td.affordance(kind, name)  # type: ignore[arg-type]
         if affordance is None:
             return "no such affordance"
-        schema = affordance if kind == "properties" else affordance.data
+        schema = entry.schemas.of(affordance if kind == "properties" else affordance.data, kind, name,
+                                  "" if kind == "properties" else "data")
         try:
             value = decode_json(payload, f"{kind}/{name}") if payload else None
             if payload or schema is not None and kind == "properties":
@@ -293,6 +295,7 @@ class Registry:
         try:
             entry.td, entry.td_error = with_types(decode_td(payload)), None
             entry.source = msgspec.json.decode(payload)
+            entry.schemas = SourceSchemas(entry.source)
             if not known:  # not a robot's TD regenerated with new bounds: compiling them would slow its serving
                 prepare(entry.td)
         except (msgspec.ValidationError, *JSON_ERRORS) as e:
@@ -332,6 +335,11 @@ class Registry:
         if not entry.alive:
             raise unavailable(f"{thing} has left the mesh")
         return entry
+
+    def schemas(self, thing: str) -> SourceSchemas:
+        """The Thing's data schemas as its TD document states them (inputs are checked against these)."""
+        entry = self._things.get(thing)
+        return entry.schemas if entry is not None else SourceSchemas(None)
 
     async def td(self, thing: str) -> ThingDescription:
         """The Thing's mesh TD; waits for a fetch in progress. 404 unknown, 503 gone or not yet known."""

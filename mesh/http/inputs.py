@@ -13,8 +13,7 @@ from starlette.requests import Request
 
 from mesh.http.problems import TooLarge, UnsupportedMediaType
 from mesh.wot.payload import decode_json
-from mesh.wot.thing_description import DataSchema
-from mesh.wot.validate import validate
+from mesh.wot.validate import Schema, validate
 
 MAX_BODY = 1 << 20  # 1 MiB: the largest input any affordance of ours needs is a few hundred bytes
 
@@ -39,7 +38,7 @@ async def read_body(request: Request, limit: int = MAX_BODY) -> bytes:
     return b"".join(chunks)
 
 
-async def read_input(request: Request, schema: DataSchema | None, path: str) -> Any:
+async def read_input(request: Request, schema: Schema, path: str) -> Any:
     """The validated JSON value of the body, or ABSENT when the body is empty."""
     body = await read_body(request)
     if not body.strip():  # nothing to decode: whatever the content type says (curl -d '' sends a form type)

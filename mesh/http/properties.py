@@ -45,7 +45,7 @@ async def write_property(request: Request) -> Response:
     thing, name, prop = await affordance(request, "properties")
     if prop.readOnly:
         raise method_not_allowed(f"property {name!r} of {thing} is read-only", ["GET", "HEAD"])
-    value = await read_input(request, prop, name)
+    value = await read_input(request, registry(request).schemas(thing).of(prop, "properties", name), name)
     if value is ABSENT:
         raise BadInput(f"{name}: a value is required")
     await registry(request).write(thing, name, encode(value))
@@ -102,7 +102,7 @@ async def write_properties(request: Request) -> Response:
     if read_only:
         raise BadInput(f"properties: {', '.join(map(repr, read_only))} of {thing} cannot be written (read-only)")
     for name, v in value.items():  # every value checked before any is written
-        validate(v, td.properties[name], name)
+        validate(v, registry(request).schemas(thing).of(td.properties[name], "properties", name), name)
     reg = registry(request)
     before = {n: await reg.read(thing, n) for n in value if not td.properties[n].writeOnly}
     written: list[str] = []

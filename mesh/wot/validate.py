@@ -225,3 +225,49 @@ def _aimed_branch(e: ValidationError) -> ValidationError | None:
     aimed = [errors for errors in by_branch.values()
              if not any(sub.validator in ("required", "type") and not sub.path for sub in errors)]
     return min(aimed[0], key=lambda sub: len(sub.path)) if len(aimed) == 1 else None
+
+
+class SourceSchemas:
+    """A Thing's data schemas as its own TD document states them: the model's schema (`DataSchema`) with
+    every keyword the document holds beyond it (`patternProperties`, `not`, `if`/`then`/`else`,
+    `definitions` a `$ref` points into, ...), so that a value is checked against the whole schema, never
+    a part of it (less, which lets through what the TD forbids, or more: `additionalProperties: false`
+    without the `patternProperties` beside it refuses every value). Each is merged once, when asked."""
+
+    def __init__(self, source: dict[str, Any] | None):
+        self.source = source if isinstance(source, dict) else None
+        self._merged: dict[tuple[str, str, str], Schema] = {}
+
+    def of(self, schema: Schema, kind: str, name: str, part: str = "") -> Schema:
+        """`schema` (the model's, of affordance `kind`/`name`, `part` "input", "output", "data" or "" for
+        a property itself) with what the document says beyond it."""
+        if self.source is None or schema is None or isinstance(schema, dict):
+            return schema
+        key = (kind, name, part)
+        if key not in self._merged:
+            raw = self.source.get(kind, {}).get(name) if isinstance(self.source.get(kind), dict) else None
+            if part and isinstance(raw, dict):
+                raw = raw.get(part)
+            model = msgspec.to_builtins(schema)
+            self._merged[key] = _with_source(raw, model) if isinstance(raw, dict) and _beyond(raw, model) else schema
+        return self._merged[key]
+
+
+def _beyond(raw: Any, model: Any) -> bool:
+    """Does the document say anything, at any depth, that the model lacks?"""
+    if isinstance(raw, dict) and isinstance(model, dict):
+        return any(k not in model or _beyond(v, model[k]) for k, v in raw.items() if k != "forms")
+    if isinstance(raw, list) and isinstance(model, list):
+        return len(raw) != len(model) or any(_beyond(a, b) for a, b in zip(raw, model))
+    return False
+
+
+def _with_source(raw: Any, model: Any) -> Any:
+    """The model's schema with every keyword of the document put back, at every depth (the model's
+    wins where both say something: it is what the served TD says)."""
+    if isinstance(raw, dict) and isinstance(model, dict):
+        return {**{k: v for k, v in raw.items() if k != "forms"},
+                **{k: _with_source(raw[k], v) if k in raw else v for k, v in model.items()}}
+    if isinstance(raw, list) and isinstance(model, list) and len(raw) == len(model):
+        return [_with_source(a, b) for a, b in zip(raw, model)]
+    return model
