@@ -11,6 +11,8 @@ from importlib import resources
 import pytest
 from browser import chromium
 
+pytestmark = pytest.mark.browser  # Chromium runs the page's form code
+
 ORIGIN = "http://control-page.test"
 UI = resources.files("mesh.http") / "ui"
 

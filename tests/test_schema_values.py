@@ -12,27 +12,14 @@ import sys
 from pathlib import Path
 
 import pytest
-from jsonschema import Draft7Validator
+from schema_checks import why_invalid
 
-from mesh.wot.problem import BadInput
 from mesh.wot.schema_values import NoValue, SchemaValues
-from mesh.wot.validate import validate
 
 DATA = Path(__file__).parent / "data"
 HUE = json.loads((DATA / "td-corpus" / "plugfest-2021" / "philips-hue__lightTD1.td.jsonld").read_text())
 HUE_OUTPUT = HUE["actions"]["setState"]["output"]  # items' optional `success`: a oneOf every object fits 9 of 10 branches of
 HUE_SUCCESS = HUE_OUTPUT["items"]["properties"]["success"]
-
-
-def why_invalid(value, schema) -> str | None:
-    errors = list(Draft7Validator(schema, format_checker=Draft7Validator.FORMAT_CHECKER).iter_errors(value))
-    if errors:
-        return errors[0].message
-    try:
-        validate(value, schema, path="value")
-    except BadInput as e:
-        return e.detail
-    return None
 
 
 def values(schema, seed: int, n: int = 12) -> list:

@@ -15,7 +15,7 @@ import string
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from jsonschema import Draft7Validator
-from test_schema_values import why_invalid
+from schema_checks import why_invalid
 
 from mesh.wot.schema_values import NoValue, SchemaValues
 
