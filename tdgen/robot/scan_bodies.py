@@ -251,12 +251,11 @@ def boxes_of(pb, client: int, body: int) -> np.ndarray | None:
     return held[1].boxes
 
 
-def fast_elements(pb, client: int, body: int) -> list | None:
-    """A scan body's padded boxes as the fast model's elements (`spheres.Convex`, scene frame), else None.
+def fast_elements(pb, client: int, body: int) -> list[tuple[np.ndarray, np.ndarray]] | None:
+    """A scan body's padded boxes as the fast model's elements (scene frame): (corners, half-spaces) per box,
+    for `spheres.Convex(corners, planes, outside=planes)`; None for any other body.
     Solid boxes where pybullet holds their padded union's surface: a link overlaps a box deeper than
     the fast model's sure depth only through that surface, as scanned shells are a voxel or two thick."""
-    from tdgen.robot.spheres import Convex
-
     boxes = boxes_of(pb, client, body)
     if boxes is None:
         return None
@@ -266,7 +265,7 @@ def fast_elements(pb, client: int, body: int) -> list | None:
     normals = np.array([[-1.0, 0, 0], [1.0, 0, 0], [0, -1.0, 0], [0, 1.0, 0], [0, 0, -1.0], [0, 0, 1.0]])
     offsets = np.stack([-lo[:, 0], hi[:, 0], -lo[:, 1], hi[:, 1], -lo[:, 2], hi[:, 2]], axis=1)  # n.x <= d
     planes = np.concatenate([np.broadcast_to(normals, (len(boxes), 6, 3)), offsets[..., None]], axis=2)
-    return [Convex(c, p, outside=p) for c, p in zip(corners, planes)]
+    return list(zip(corners, planes))
 
 
 def build(prepared: Prepared, position, orientation, client: int) -> int:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tdgen.robot.surroundings import SceneError
+from tdgen.robot.errors import SceneError
 
 CLOUD_SUFFIXES = (".pcd", ".ply", ".xyz", ".pts", ".txt", ".csv", ".las", ".laz", ".e57")
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".glb", ".gltf", ".off", ".dae")

@@ -363,7 +363,7 @@ def scene_elements(pb, client: int, body: int) -> list[Convex]:
 
     known = fast_elements(pb, client, body)
     if known is not None:
-        return known
+        return [Convex(corners, planes, outside=planes) for corners, planes in known]
     out = []
     for link in range(-1, pb.getNumJoints(body, physicsClientId=client)):
         lo, hi = pb.getAABB(body, link, physicsClientId=client)

@@ -39,14 +39,11 @@ from typing import Union
 import msgspec
 
 from mesh.messages.scene_description import SceneDescription
+from tdgen.robot.errors import SceneError as SceneError  # raised here; tdgen.robot.errors holds it
 
 SCENES_DIR = Path(__file__).parent / "scenes"
 PYBULLET_DATA = "pybullet_data:"
 Vec3 = tuple[float, float, float]
-
-
-class SceneError(Exception):
-    """A scene file that cannot be used; the message names the file and the problem."""
 
 
 class RobotPlacement(msgspec.Struct, forbid_unknown_fields=True):
