@@ -40,7 +40,7 @@ class LazyGroup(click.Group):
         "workflow": lambda: _workflow_cli().workflow_command,
         "robot": lambda: _robot_cli().robot_command,
         "eval": lambda: _eval_cli().eval_command,
-        "scene": lambda: __import__("tdgen.cli.scene", fromlist=["scene_group"]).scene_group,
+        "scene": lambda: _scene_cli().scene_group,
     }
 
     def list_commands(self, ctx: click.Context) -> list[str]:
@@ -63,6 +63,12 @@ def _ik_cli():
     from tdgen.cli import ik
 
     return ik
+
+
+def _scene_cli():
+    from tdgen.cli import scene
+
+    return scene
 
 
 def _workflow_cli():

@@ -16,6 +16,7 @@ import os
 import sys
 import threading
 from pathlib import Path
+from types import ModuleType
 
 import platformdirs
 
@@ -75,8 +76,8 @@ def compiled() -> bool:
 _started = threading.Event()
 
 
-def compile_in_background() -> None:
-    """Compile everything (`fast_collision.compile_all`) in a process of its own, at most once per process;
+def compile_in_background(module: ModuleType) -> None:
+    """Compile everything (`module`'s main: `fast_collision.compile_all`) in a process of its own, at most once per process;
     it goes on if this process ends (a `twinmesh tdgen` that was done first) and does nothing if another
     such process is at it."""
     import subprocess
@@ -84,5 +85,5 @@ def compile_in_background() -> None:
     if _started.is_set():
         return
     _started.set()
-    subprocess.Popen([sys.executable, "-m", "tdgen.robot.fast_collision"], stdin=subprocess.DEVNULL,
+    subprocess.Popen([sys.executable, "-m", module.__name__], stdin=subprocess.DEVNULL,
                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
