@@ -1,6 +1,7 @@
 """`twinmesh replay FILE.rrd`: a recording in Rerun's viewer, in a browser (any host) or on the desktop."""
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 
@@ -21,7 +22,7 @@ def replay(path: str, port: int, grpc_port: int | None, bind: str, desktop: bool
     URL to open printed, until Ctrl-C; or with --desktop in the desktop viewer. Rerun's analytics are off."""
     from mesh.cli.exits import usage_exit
     from mesh.recorder.repair import RepairError
-    from mesh.recorder.replay import ReplayError, WebReplay, check_recording, desktop_command, rerun_env
+    from mesh.recorder.replay import ReplayError, WebReplay, check_recording, desktop_command, rerun_env, stop_group
 
     try:
         rrd = check_recording(path)
@@ -32,16 +33,18 @@ def replay(path: str, port: int, grpc_port: int | None, bind: str, desktop: bool
     except (ReplayError, RepairError) as e:
         raise usage_exit(str(e)) from None
     click.echo(f"replaying {rrd} at {web.url}  (Ctrl-C to stop)")
+    for stop_signal in (signal.SIGTERM, signal.SIGHUP):  # a service manager's stop ends the viewer too, as Ctrl-C
+        signal.signal(stop_signal, _interrupt)
     try:
         proc.wait()
     except KeyboardInterrupt:
         pass
     finally:
-        viewer.close()
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        try:
+            stop_group(proc)
+        finally:
+            viewer.close()
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt

@@ -96,15 +96,20 @@ class WebReplay:
         """Start serving; returns once the stream and the page answer (rerun's output is kept for an error)."""
         self.check_ports()
         log = tempfile.TemporaryFile()
-        proc = subprocess.Popen(self.command(), stdout=log, stderr=subprocess.STDOUT, env=rerun_env())
+        # its own process group: `rerun` is a Python launcher whose child serves; stopping the launcher alone
+        # would leave the server running
+        proc = subprocess.Popen(self.command(), stdout=log, stderr=subprocess.STDOUT, env=rerun_env(),
+                                start_new_session=True)
         if not _wait_port(self.host, self.grpc_port, proc, READY_TIMEOUT):
-            if proc.poll() is None:
-                proc.kill()
-            proc.wait()
+            stop_group(proc, grace=0)
             log.seek(0)
             said = log.read().decode(errors="replace").strip().splitlines()
             raise ReplayError(f"rerun did not serve {self.path}" + (f": {said[-1][-300:]}" if said else ""))
-        return proc, ViewerServer((self.host, self.port), self.grpc_port)
+        try:
+            return proc, ViewerServer((self.host, self.port), self.grpc_port)
+        except BaseException:  # the page's port taken meanwhile: no rerun is left serving
+            stop_group(proc, grace=0)
+            raise
 
 
 def desktop_command(path: Path) -> list[str]:
@@ -129,3 +134,25 @@ def _wait_port(host: str, port: int, proc: subprocess.Popen, timeout: float) -> 
         except OSError:
             time.sleep(0.1)
     return False
+
+
+def stop_group(proc: subprocess.Popen, grace: float = 5.0) -> None:
+    """Stop `proc` and every process it started (its own session's group): SIGTERM and up to `grace` seconds
+    to end, then SIGKILL for whatever of the group is left (the launcher's server)."""
+    import signal
+
+    if grace > 0:
+        _signal_group(proc, signal.SIGTERM)
+        try:
+            proc.wait(timeout=grace)
+        except subprocess.TimeoutExpired:
+            pass
+    _signal_group(proc, signal.SIGKILL)
+    proc.wait()
+
+
+def _signal_group(proc: subprocess.Popen, sig: int) -> None:
+    try:
+        os.killpg(proc.pid, sig)
+    except ProcessLookupError:  # the whole group has ended
+        pass
