@@ -4,9 +4,9 @@ in the device alike."""
 from __future__ import annotations
 
 import pytest
+from fake_registry import FakeRegistry
 from starlette.testclient import TestClient
 
-from fake_registry import FakeRegistry
 from mesh.http.app import create_app
 from mesh.wot.problem import BadInput
 from mesh.wot.thing_description import decode_td
