@@ -34,6 +34,17 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def _hangups_reach_children() -> None:
+    """Labs die with whoever started them (`up`'s own rule), unless hang-ups are ignored, as under `nohup`:
+    then `up` takes itself for detached on purpose and outlives a killed test run. A handler here (which
+    does nothing) is reset to the default in every child, so the labs of a test run follow it anyway."""
+    if signal.getsignal(signal.SIGHUP) is signal.SIG_IGN:
+        try:
+            signal.signal(signal.SIGHUP, lambda signum, frame: None)
+        except ValueError:  # not the main thread: nothing to change from here
+            pass
+
+
 def twinmesh_cmd(endpoint: str, *args: str) -> list[str]:
     return [sys.executable, "-m", "devices", "--connect", endpoint, *args]
 
@@ -62,6 +73,7 @@ class Lab:
     def spawn(self, *args: str, log: Path | None = None) -> subprocess.Popen:
         """Start another long-running twinmesh process (a device, a recorder) on this lab's mesh."""
         out = open(log, "wb") if log else subprocess.DEVNULL
+        _hangups_reach_children()
         p = subprocess.Popen(twinmesh_cmd(self.endpoint, *self.options, *args), stdout=out, stderr=subprocess.STDOUT,
                              cwd=REPO, start_new_session=True)
         self.extra.append(p)
@@ -172,6 +184,7 @@ def _start_lab(tmp: Path, scene: str | None, http: bool, things: set[str] | None
     args = ["up", *([scene] if scene else []), *extra_args] + (["--http", f"127.0.0.1:{port}"] if http else ["--no-http"])
     args += ["--view", f"127.0.0.1:{free_port()}"] if view else ["--no-view"]
     log = tmp / f"lab-{scene or 'default'}.log"
+    _hangups_reach_children()
     proc = subprocess.Popen(twinmesh_cmd(endpoint, *options, *args), stdout=open(log, "wb"), stderr=subprocess.STDOUT,
                             cwd=REPO, start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lab = Lab(endpoint, f"http://127.0.0.1:{port}" if http else None, proc, log, options=options)
@@ -201,6 +214,7 @@ def spawn_up(endpoint: str, log: Path, *args: str) -> subprocess.Popen:
     view on a free port unless ARGS say otherwise."""
     if "--view" not in args and "--no-view" not in args:
         args = (*args, "--view", f"127.0.0.1:{free_port()}")
+    _hangups_reach_children()
     return subprocess.Popen(twinmesh_cmd(endpoint, "up", *args), stdout=open(log, "wb"), stderr=subprocess.STDOUT,
                             cwd=REPO, start_new_session=True)
 

@@ -98,16 +98,22 @@ time.sleep(600)
 """
 
 
-def test_a_lab_dies_with_whoever_started_it_even_killed_hard(tmp_path):
+@pytest.mark.parametrize("hangups", ["heard", "ignored"])
+def test_a_lab_dies_with_whoever_started_it_even_killed_hard(tmp_path, hangups):
     """A test process (or a script, an editor) that started `twinmesh up` and is then SIGKILLed leaves
-    nothing running: no `up`, none of its processes, no port held."""
+    nothing running: no `up`, none of its processes, no port held; also a test run started under `nohup`
+    (hang-ups ignored), whose labs `up` would otherwise take for detached on purpose."""
     import signal
     import sys
 
     import psutil
 
+    def like_nohup() -> None:
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
     starter = subprocess.Popen([sys.executable, "-c", STARTER.format(tests=str(REPO / "tests"), tmp=str(tmp_path))],
-                               stdout=subprocess.PIPE, text=True, cwd=REPO)
+                               stdout=subprocess.PIPE, text=True, cwd=REPO,
+                               preexec_fn=like_nohup if hangups == "ignored" else None)
     try:
         line = starter.stdout.readline()
         assert line.strip().isdigit(), f"the starter printed {line!r}"
