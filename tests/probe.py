@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from labs import REPO, Lab
+from waiting import eventually
 
 TESTS = Path(__file__).resolve().parent
 STL = b"solid probe\nendsolid probe\n"
@@ -123,12 +124,11 @@ def spawn_device(lab: Lab, kind: str, name: str, timeout: float = 30) -> Device:
 
 
 def poll(fn, timeout: float, every: float = 0.05):
-    """Call fn until it returns something truthy; (value, seconds waited) or (last value, None)."""
+    """`eventually(fn)` checked every `every` s (the seconds waited are a measure here): (value, seconds
+    waited), or (the last value, None) when it did not come within `timeout`."""
     started = time.monotonic()
-    value = None
-    while time.monotonic() - started <= timeout:
-        value = fn()
-        if value:
-            return value, time.monotonic() - started
-        time.sleep(every)
-    return value, None
+    try:
+        value = eventually(fn, timeout=timeout, interval=every, longest=every)
+    except AssertionError:
+        return fn(), None
+    return value, time.monotonic() - started

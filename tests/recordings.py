@@ -4,23 +4,24 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 from pathlib import Path
+
+from waiting import eventually
 
 RERUN = str(Path(sys.executable).with_name("rerun"))
 
 
 def wait_for_line(log: Path, text: str, proc: subprocess.Popen, timeout: float = 30.0) -> str:
     """Wait until `text` appears in a process's log (the recorder's ready line)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+    def logged() -> str | None:
         content = log.read_text() if log.exists() else ""
         if text in content:
             return content
         if proc.poll() is not None:
-            raise AssertionError(f"process exited ({proc.returncode}) before {text!r}:\n{content}")
-        time.sleep(0.05)
-    raise AssertionError(f"{text!r} not logged within {timeout} s:\n{log.read_text()}")
+            raise RuntimeError(f"process exited ({proc.returncode}) before {text!r}:\n{content}")
+        return None
+
+    return eventually(logged, timeout=timeout, what=f"{text!r} logged in {log}")
 
 
 def read_column(path: Path, entity: str, component: str) -> list:

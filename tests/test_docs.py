@@ -24,7 +24,6 @@ import shlex
 import signal
 import subprocess
 import sys
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -190,7 +189,10 @@ class Walk:
     def stream(self, original: str, command: str) -> None:
         log = f"{self.n}.log"
         p = self.shell(self.rewrite(command), log)
-        time.sleep(STREAM_SECONDS)  # the stream's running time, as a user watches it before Ctrl-C: not a wait
+        try:  # it streams until Ctrl-C: its end (an error) is the event, the window as long as a user watches
+            p.wait(timeout=STREAM_SECONDS)
+        except subprocess.TimeoutExpired:
+            pass
         if p.poll() is not None and p.returncode != 0:
             self.failures.append(f"{original}\n  exited {p.returncode} before Ctrl-C:\n{self.output(log)}")
         stop(p)

@@ -13,7 +13,8 @@ from typing import TypeVar
 T = TypeVar("T")
 
 
-def eventually(condition: Callable[[], T], timeout: float = 60.0, interval: float = 0.02, what: str = "") -> T:
+def eventually(condition: Callable[[], T], timeout: float = 60.0, interval: float = 0.02, what: str = "",
+               longest: float = 0.5) -> T:
     """Call `condition` until it returns something truthy (returned) or raises nothing falsy in time.
 
     An AssertionError from `condition` counts as "not yet", so `lambda: check(x)` with asserts inside
@@ -35,7 +36,7 @@ def eventually(condition: Callable[[], T], timeout: float = 60.0, interval: floa
                 raise last
             raise AssertionError(f"not true after {timeout:.0f} s: {what or getattr(condition, '__name__', condition)}")
         time.sleep(delay)
-        delay = min(delay * 1.5, 0.5)
+        delay = min(delay * 1.5, max(longest, interval))
 
 
 def always(condition: Callable[[], object], duration: float, interval: float = 0.05, what: str = "") -> None:
