@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 from devices.lab import entries
 from devices.lab.supervisor import ProcessSpec
+from devices.things.fleet import DEFAULT_FLEET, FleetDevice, fleet_names, split
+from devices.things.lights import LIGHTS
+from devices.things.platform_devices import PLATFORM_DEVICES
 from devices.things.robot_setup import RobotSetup
 from mesh.messages.scene_description import DEFAULT_SAMPLES
 
@@ -20,7 +23,6 @@ if TYPE_CHECKING:
     from devices.things.guard import RealDevice
     from mesh.bridge.run import Access
 
-DEFAULT_FLEET = 100  # the fleet scene's devices when --fleet is not given
 
 
 @dataclass(frozen=True)
@@ -48,11 +50,8 @@ class Scene:
     guardable: frozenset[str] = field(default_factory=frozenset)
 
 
-LIGHTS = ("light-left", "light-right")
-PLATFORM = ("dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2",
-            "color-sensor", "uarm", "world")
-PLATFORM_DEVICES = frozenset({"dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1",
-                              "infrared-sensor-2", "color-sensor", "uarm"})  # the twins that guard a real device
+PLATFORM = (*PLATFORM_DEVICES, "world")
+GUARDING = frozenset(PLATFORM_DEVICES)  # the platform's twins, each of which can guard its real device
 UR10 = RobotSetup(urdf="ur10.urdf", name="ur10", scene="table-and-wall")
 
 
@@ -68,7 +67,7 @@ def _iot_platform(o: LabOptions) -> list[ProcessSpec]:
 
 def _ur10(o: LabOptions) -> list[ProcessSpec]:
     # a generic robot arm (`twinmesh robot`) on a table beside a wall; its TD comes from the tdgen service
-    setup = UR10.replace(speed=o.speed, samples=o.samples or DEFAULT_SAMPLES)
+    setup = replace(UR10, speed=o.speed, samples=o.samples or DEFAULT_SAMPLES)
     return [ProcessSpec("ur10", entries.robot, {"setup": setup, "real": o.real, "access": o.access},
                         role="robot ur10")]
 
@@ -80,8 +79,6 @@ def _iot_lab(o: LabOptions) -> list[ProcessSpec]:
 
 
 def _fleet(o: LabOptions) -> list[ProcessSpec]:
-    from devices.things.fleet import FleetDevice, split
-
     parts = split(o.fleet or DEFAULT_FLEET, o.processes or os.cpu_count() or 1)
     return [ProcessSpec(f"fleet-{i + 1}", entries.fleet, {"start": lo, "end": hi, "first": o.fleet_first},
                         role=f"fleet {FleetDevice(lo, o.fleet_first).name}..{FleetDevice(hi - 1, o.fleet_first).name}")
@@ -89,8 +86,6 @@ def _fleet(o: LabOptions) -> list[ProcessSpec]:
 
 
 def _fleet_things(o: LabOptions) -> list[str]:
-    from devices.things.fleet import fleet_names
-
     return fleet_names(o.fleet or DEFAULT_FLEET, o.fleet_first)
 
 
@@ -102,9 +97,9 @@ FLEET = "fleet"
 SCENES: dict[str, Scene] = {s.name: s for s in [
     Scene("iot-lab", "the whole room: the IoT platform, the UR10 behind its safety wall, lights and pan-tilts",
           _iot_lab, _fixed(*PLATFORM, "ur10", *LIGHTS, "pan-tilt-1", "pan-tilt-2"),
-          guardable=PLATFORM_DEVICES | {"ur10"}),
+          guardable=GUARDING | {"ur10"}),
     Scene("iot-platform", "the IoT platform's table: two belts, two light barriers, a colour sensor, a uArm "
-          "and a Dobot", _iot_platform, _fixed(*PLATFORM), guardable=PLATFORM_DEVICES),
+          "and a Dobot", _iot_platform, _fixed(*PLATFORM), guardable=GUARDING),
     Scene("ur10", "a UR10 on a table beside a wall", _ur10, _fixed("ur10"), guardable=frozenset({"ur10"})),
     Scene("lights", "two lamps, no simulation", _lights, _fixed(*LIGHTS)),
     Scene(FLEET, "--fleet N virtual devices of four kinds, for load tests", _fleet, _fleet_things),

@@ -40,13 +40,12 @@ from devices.sim.dobot import Dobot
 from devices.sim.sensors import ColorSensor, InfraredSensor
 from devices.sim.uarm import Uarm
 from devices.things.binding import Cleanup, nothing_to_undo
+from devices.things.platform_devices import PLATFORM_DEVICES as PLATFORM_DEVICES  # bound here
 from mesh.fabric.keys import Keys
 from mesh.fabric.server import ExposedThing
 from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
 
 TDS = Path(__file__).parent / "tds"
-PLATFORM_DEVICES = ("dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2",
-                    "color-sensor", "uarm")
 # the uArm tool point can be anywhere the firmware's motor limits allow (mm, rounded outwards;
 # tests/test_platform_tds.py samples the whole joint space against it)
 LOCATION_RANGE = {"x": (0, 370), "y": (-370, 370), "z": (-140, 190)}

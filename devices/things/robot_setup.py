@@ -2,7 +2,7 @@
 process entry (devices.lab.robot_process), its twin and the TwinDescription the generation gets."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from mesh.messages.scene_description import DEFAULT_SAMPLES, CollisionModel
@@ -31,6 +31,3 @@ class RobotSetup:
     speed: float | None = 1.0                 # simulation speed factor (None: as fast as the CPU allows)
     planning_budget: float = 1.0              # s a move may plan before it is refused
     collision_model: CollisionModel = "fast"  # what decides collisions for samples, target checks and planning
-
-    def replace(self, **changes: object) -> RobotSetup:
-        return replace(self, **changes)  # type: ignore[arg-type]
