@@ -244,7 +244,7 @@ def keep_terms(source: Any, served: Any) -> Any:
             out[key] = {name: _keep_affordance(a, out[key][name]) if name in out[key] else a
                         for name, a in value.items()} | {n: a for n, a in out[key].items() if n not in value}
         else:
-            out[key] = _keep(value, out[key]) if key in out else value
+            out[key] = keep_source_terms(value, out[key]) if key in out else value
     return out
 
 
@@ -254,16 +254,16 @@ def _keep_affordance(source: Any, served: Any) -> Any:
     out = dict(served)
     for key, value in source.items():
         if key != "forms":
-            out[key] = _keep(value, out[key]) if key in out else value
+            out[key] = keep_source_terms(value, out[key]) if key in out else value
     return out
 
 
-def _keep(source: Any, served: Any) -> Any:
+def keep_source_terms(source: Any, served: Any) -> Any:
     """Every term of `source` at every depth, with what `served` says where both have a term."""
     if isinstance(source, dict) and isinstance(served, dict):
-        return {**served, **{k: _keep(v, served[k]) if k in served else v for k, v in source.items()}}
+        return {**served, **{k: keep_source_terms(v, served[k]) if k in served else v for k, v in source.items()}}
     if isinstance(source, list) and isinstance(served, list) and len(source) == len(served):
-        return [_keep(a, b) for a, b in zip(source, served)]
+        return [keep_source_terms(a, b) for a, b in zip(source, served)]
     if type(source) is not type(served) and isinstance(source, (int, float)) and not isinstance(source, bool) \
             and source == served:
         return source  # the Thing's 120, not the model's 120.0

@@ -24,7 +24,7 @@ import fastjsonschema
 import msgspec
 
 from mesh.wot.problem import BadInput
-from mesh.wot.thing_description import DataSchema, ThingDescription
+from mesh.wot.thing_description import DataSchema, ThingDescription, keep_source_terms
 
 if TYPE_CHECKING:
     from jsonschema import Draft7Validator
@@ -240,34 +240,20 @@ class SourceSchemas:
 
     def of(self, schema: Schema, kind: str, name: str, part: str = "") -> Schema:
         """`schema` (the model's, of affordance `kind`/`name`, `part` "input", "output", "data" or "" for
-        a property itself) with what the document says beyond it."""
+        a property itself) with what the document says beyond it (the model's itself where it says nothing
+        more: its compiled validator is shared)."""
         if self.source is None or schema is None or isinstance(schema, dict):
             return schema
         key = (kind, name, part)
         if key not in self._merged:
-            raw = self.source.get(kind, {}).get(name) if isinstance(self.source.get(kind), dict) else None
+            affordances = self.source.get(kind)
+            raw = affordances.get(name) if isinstance(affordances, dict) else None
             if part and isinstance(raw, dict):
                 raw = raw.get(part)
             model = msgspec.to_builtins(schema)
-            self._merged[key] = _with_source(raw, model) if isinstance(raw, dict) and _beyond(raw, model) else schema
+            if isinstance(raw, dict):  # forms are the server's, not the schema's
+                merged = keep_source_terms({k: v for k, v in raw.items() if k != "forms"}, model)
+                self._merged[key] = merged if merged != model else schema
+            else:
+                self._merged[key] = schema
         return self._merged[key]
-
-
-def _beyond(raw: Any, model: Any) -> bool:
-    """Does the document say anything, at any depth, that the model lacks?"""
-    if isinstance(raw, dict) and isinstance(model, dict):
-        return any(k not in model or _beyond(v, model[k]) for k, v in raw.items() if k != "forms")
-    if isinstance(raw, list) and isinstance(model, list):
-        return len(raw) != len(model) or any(_beyond(a, b) for a, b in zip(raw, model))
-    return False
-
-
-def _with_source(raw: Any, model: Any) -> Any:
-    """The model's schema with every keyword of the document put back, at every depth (the model's
-    wins where both say something: it is what the served TD says)."""
-    if isinstance(raw, dict) and isinstance(model, dict):
-        return {**{k: v for k, v in raw.items() if k != "forms"},
-                **{k: _with_source(raw[k], v) if k in raw else v for k, v in model.items()}}
-    if isinstance(raw, list) and isinstance(model, list) and len(raw) == len(model):
-        return [_with_source(a, b) for a, b in zip(raw, model)]
-    return model
