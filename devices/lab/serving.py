@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import threading
 from contextlib import ExitStack
+from typing import TYPE_CHECKING
 
 from devices.sim.dobot import Dobot
 from devices.sim.layouts.platform_layout import IotPlatform
@@ -12,13 +13,15 @@ from devices.sim.uarm import Uarm
 from devices.things.binding import serve
 from devices.things.guard import Frame, Guard, RealDevice, RobotMirror, UarmMirror, dobot_guard, robot_guard, uarm_guard
 from devices.things.platform_things import PLATFORM_DEVICES, bind_device, platform_thing, twin_td
-from devices.things.robot_thing import RobotThing
 from mesh.bridge.bridged import BridgedThing
 from mesh.bridge.remote import RemoteThing
 from mesh.bridge.run import Access
 from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
 from mesh.http.http_client import HttpClient
+
+if TYPE_CHECKING:  # the platform's process has no robot: it need not load the robot Thing's code (numba)
+    from devices.things.robot_thing import RobotThing
 
 
 def guard_robot(stack: ExitStack, settings: MeshSettings, robot: RobotThing, device: RealDevice, access: Access,
