@@ -6,11 +6,16 @@ workspace, obstacles, planned paths, plots of properties) logs into a RecordingS
 Rerun's gRPC proxy, and `mesh.recorder.web_viewer` serves Rerun's web viewer (its files come with
 rerun-sdk: no internet; the page may reach nothing but this host) pointed at that stream.
 
-A browser that opens the URL late must be current at once, however long the lab has run: the
-server keeps the static data (the room, the robots' models, the blueprint) and the last `MEMORY` of
-the rest (oldest first out), and sends a new viewer the newest data first (`newest_first`), so the
-current state is drawn before the history fills in behind it. The `.rrd` file of `--record` is a
-separate recorder and keeps everything.
+A browser that opens the URL late must be current within seconds, however long the lab has run:
+the gRPC server keeps the static data (the room, the robots' models, the workspaces, the blueprint)
+and only the newest `MEMORY` of the rest (oldest first out), and sends a new viewer the newest data
+first (`newest_first`). `mesh.recorder.live_state.LiveState` logs again every `REFRESH` seconds
+whatever was left alone that long, so that newest part always holds the whole current state, and a
+late viewer has little history to take in before it is current. The `.rrd` file of `--record` is
+a separate recorder and keeps everything.
+
+The stream is served on the view's own host (127.0.0.1 unless `twinmesh up --view HOST:PORT` names
+another): Rerun's own default would be every interface.
 """
 from __future__ import annotations
 
@@ -20,7 +25,8 @@ import time
 
 from mesh.fabric.settings import MeshSettings
 
-MEMORY = "16MiB"  # the history the gRPC proxy keeps for a browser that connects later (static data besides)
+MEMORY = "4MiB"  # the newest part of the stream the gRPC server keeps for a late viewer (static data besides)
+REFRESH = 10.0  # s; an entity left alone this long is logged again, so that part always holds it
 
 
 def view_url(address: tuple[str, int], grpc_port: int) -> str:
@@ -35,16 +41,20 @@ def grpc_url(host: str, grpc_port: int) -> str:
 
 
 def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] = ("127.0.0.1", 9090),
-        grpc_port: int = 9876) -> None:
-    """Process entry: serve the lab to a web viewer at `address` until `stop` is set."""
+        grpc_port: int = 9876, memory: str = MEMORY, refresh: float | None = REFRESH) -> None:
+    """Process entry: serve the lab to a web viewer at `address` until `stop` is set. `memory` and
+    `refresh` (None: the current state is not logged again) are there for the benchmark's baseline."""
     import rerun as rr
 
     from mesh.fabric.session import open_session
+    from mesh.recorder.live_state import LiveState
     from mesh.recorder.logger import Recorder
     from mesh.recorder.web_viewer import ViewerServer
 
-    rec = rr.RecordingStream("twinmesh")
-    rr.serve_grpc(grpc_port=grpc_port, recording=rec, server_memory_limit=MEMORY, newest_first=True)
+    stream = rr.RecordingStream("twinmesh")
+    stream.set_sinks(rr.GrpcServerSink(bind_ip=address[0], port=grpc_port, server_memory_limit=memory,
+                                       newest_first=True))
+    rec = stream if refresh is None else LiveState(stream, refresh)
     viewer = ViewerServer(address, grpc_port)
     rec.send_recording_name(f"twinmesh {settings.prefix} live {time.strftime('%Y-%m-%d %H:%M:%S')}")
     with open_session(settings, service=True) as session, Recorder(session, settings, rec) as recorder:
