@@ -20,6 +20,7 @@ from urllib.parse import urlsplit
 import numpy as np
 
 VIEWPORT = {"width": 1280, "height": 800}
+VIEW_AREA = (0.0, 0.1, 0.6, 0.9)  # the 3D view's part of the page: x0, y0, x1, y1 as fractions
 _RERUN_LINE = re.compile(r"\b(ERROR|WARN)\s+(re_\w+|egui\w*|eframe)(::\w+)*:")
 # Rerun's warnings about this machine, not about the data: a software rasteriser (no GPU here), the web
 # backend lacking a window command, the welcome screen's examples that the page may not fetch (our policy)
@@ -73,9 +74,19 @@ class ViewerPage:
 
     def pixels(self) -> np.ndarray:
         """The page as it is drawn now, (height, width, 3) uint8."""
+        return self._shot()
+
+    def view_pixels(self) -> np.ndarray:
+        """Only the 3D view (VIEW_AREA of the page): no plot or panel of the viewer's own colours in it,
+        and a smaller picture, read sooner."""
+        w, h = VIEWPORT["width"], VIEWPORT["height"]
+        x0, y0, x1, y1 = VIEW_AREA
+        return self._shot({"x": x0 * w, "y": y0 * h, "width": (x1 - x0) * w, "height": (y1 - y0) * h})
+
+    def _shot(self, clip: dict | None = None) -> np.ndarray:
         from PIL import Image
 
-        png = self.page.screenshot(timeout=180_000)
+        png = self.page.screenshot(timeout=180_000, clip=clip)
         return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
 
 
@@ -96,7 +107,8 @@ def room_drawn(pixels: np.ndarray) -> bool:
     """The 3D view (the left three fifths of the page) shows a scene: light walls and darker floor and
     tables in many shades, not an empty panel nor the dark loading screen."""
     h, w, _ = pixels.shape
-    area = pixels[h // 10: 9 * h // 10, : 3 * w // 5]
+    x0, y0, x1, y1 = VIEW_AREA
+    area = pixels[round(y0 * h): round(y1 * h), round(x0 * w): round(x1 * w)]
     brightest = area.max(axis=2)
     shades = len(np.unique(area.reshape(-1, 3) // 16, axis=0))
     return float((brightest < 200).mean()) > 0.2 and float((brightest > 200).mean()) > 0.2 and shades > 100

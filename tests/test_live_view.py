@@ -4,11 +4,13 @@ One lab (`twinmesh up iot-lab` with its live view and `--record`) for the module
 opens the view as a person would (headless Chromium, software WebGL), waits until the room is drawn,
 switches a lamp on in a colour nothing else in the room has, and waits for that colour in the page;
 Rerun says no error or warning about the data on the console meanwhile, and the page asks no host
-but this one for anything. The recording test then changes the lamps, adds and removes an obstacle,
+but this one for anything. A second page, opened after the lamp went through several colours, shows
+it in its current colour and in no earlier one. The recording test then changes the lamps, adds and removes an obstacle,
 stops the lab and reads its recording with rerun-sdk's own reader.
 """
 import json
 import re
+import socket
 import subprocess
 
 import numpy as np
@@ -22,6 +24,7 @@ from recordings import RERUN, read_column
 pytestmark = [pytest.mark.lab, pytest.mark.slow]
 
 MAGENTA = (255, 0, 255)  # no body of the iot-lab has it
+VIOLET = (128, 0, 255)  # nor this
 DRAWN_TIMEOUT = 900.0  # a software rasteriser on a busy 2-core machine needs minutes for its first frame
 SHOWN_TIMEOUT = 300.0
 CRATE = {"name": "crate", "size": [0.3, 0.3, 0.3], "position": [2.3, -0.42, 0.9]}
@@ -53,6 +56,10 @@ def magenta_pixels(pixels: np.ndarray) -> int:
     return round(colour_share(pixels, MAGENTA) * pixels.shape[0] * pixels.shape[1])
 
 
+def shows(pixels: np.ndarray, rgb: tuple[int, int, int]) -> bool:
+    return colour_share(pixels, rgb) * pixels.shape[0] * pixels.shape[1] >= 20
+
+
 @pytest.mark.browser
 @pytest.mark.timeout(DRAWN_TIMEOUT + SHOWN_TIMEOUT + 600)  # the lab's start besides
 def test_the_live_view_draws_the_lab_and_a_lamp_in_the_colour_it_is_switched_on_in(lab):
@@ -71,6 +78,45 @@ def test_the_live_view_draws_the_lab_and_a_lamp_in_the_colour_it_is_switched_on_
             raise
         assert view.rerun_problems() == []
         assert view.foreign_hosts() == set(), "the page asked hosts other than this one"
+
+
+@pytest.mark.browser
+@pytest.mark.timeout(DRAWN_TIMEOUT + SHOWN_TIMEOUT + 600)
+def test_a_viewer_opened_late_shows_the_lamp_in_its_current_colour_not_an_earlier_one(lab):
+    invoke(lab, "invoke", "light-left", "switchOn")
+    for colour in ({"r": 1, "g": 0, "b": 0}, {"r": 1, "g": 0, "b": 1}, {"r": 0, "g": 1, "b": 0}):
+        invoke(lab, "invoke", "light-left", "setColor", json.dumps(colour))
+    invoke(lab, "write", "light-left", "lightColor", "[0.5, 0, 1]")  # violet: the current colour
+    with viewer_page(view_url(lab)) as view:
+        try:
+            eventually(lambda: room_drawn(view.pixels()), timeout=DRAWN_TIMEOUT, interval=5.0,
+                       what="the room drawn in the late viewer")
+            eventually(lambda: shows(view.view_pixels(), VIOLET), timeout=SHOWN_TIMEOUT, interval=2.0,
+                       what="the lamp's current violet in the late viewer")
+            assert not shows(view.view_pixels(), MAGENTA), "an earlier colour of the lamp is still drawn"
+        except AssertionError:
+            view.save(lab.tmp / "late-view.png")
+            raise
+        assert view.rerun_problems() == []
+
+
+def test_the_view_and_its_stream_listen_on_the_views_host_only(lab):
+    """`--view 127.0.0.1:PORT` (the default host): neither port answers on this machine's other addresses."""
+    import psutil
+
+    found = re.search(r"http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1%3A(\d+)", view_url(lab))
+    assert found, view_url(lab)
+    ports = [int(p) for p in found.groups()]
+    others = [a.address for addrs in psutil.net_if_addrs().values() for a in addrs
+              if a.family == socket.AF_INET and not a.address.startswith("127.")]
+    if not others:
+        pytest.skip("this machine has no address but loopback")
+    for port in ports:
+        with socket.create_connection(("127.0.0.1", port), timeout=10):
+            pass
+        for address in others:
+            with pytest.raises(OSError), socket.create_connection((address, port), timeout=10):
+                pass
 
 
 def test_the_recording_holds_each_lamp_change_and_names_each_frame_once(lab):

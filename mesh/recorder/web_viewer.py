@@ -23,8 +23,13 @@ _KEPT_HEADERS = ("Content-Type", "Content-Encoding")
 _REMOTE_LINK = re.compile(rb"<link\b[^>]*?https?://[^>]*>", re.S)
 
 
+WILDCARDS = ("0.0.0.0", "::", "")  # every interface: a browser elsewhere reaches it by this machine's name
+
+
 def viewer_url(host: str, port: int, grpc_port: int) -> str:
     """What a browser opens: the viewer at host:port, pointed at the gRPC stream on the same host."""
+    if host in WILDCARDS:
+        host = socket.gethostname()
     stream = f"rerun+http://{host}:{grpc_port}/proxy"
     return f"http://{host}:{port}/?url={quote(stream, safe='')}&hide_welcome_screen"
 

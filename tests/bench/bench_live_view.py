@@ -1,20 +1,24 @@
 """The live view's delay behind the lab, what a late viewer needs to be current, the recorder's cost.
 
-    python tests/bench/bench_live_view.py [--minutes 10] [--rounds 5]
+    python tests/bench/bench_live_view.py [--minutes 10] [--changes 20] [--no-baseline]
 
-Starts `twinmesh up iot-lab --speed max --record FILE` with its live view, and keeps it busy (the cube
-workflow over and over). Three figures, each printed beside its baseline from the same run:
+Starts `twinmesh up iot-lab --speed max --record FILE` with its live view and HTTP adapter, keeps it
+busy (the cube workflow over and over), and measures in headless Chromium (software WebGL):
 
-- **delay**: a viewer opened on the fresh lab (headless Chromium, software WebGL), `rounds` times the
-  left lamp's colour changed (magenta / green in turn): the wall time from the action's reply to the
-  first screenshot of the page that shows the new colour. Baseline: how long one screenshot takes
-  (the resolution of the figure: a change cannot be seen faster than the page is read);
-- **late viewer**: after `minutes` of the busy lab, a new page: the time until the room is drawn and
-  then the same colour delay. Baseline: the same two figures for the viewer opened at the start;
-- **recorder**: the `twinmesh: recorder` process's CPU seconds and resident memory over the run,
-  scaled to one hour, and the recording's size per hour. Baseline: the same for the world process.
+- **delay**: `changes` times the left lamp's colour written over HTTP (`PUT .../lightColor`, magenta
+  and violet in turn, colours no body of the room has): the wall time from the PUT to the end of the
+  first screenshot of the 3D view that shows the new colour, p50 / p99 / max. Baseline: how long one
+  screenshot takes (the figure's resolution: a frame cannot be seen sooner than the page is read).
+  Measured in a viewer opened on the fresh lab and again in the late viewer;
+- **late viewer**: the lamp is left magenta, the lab runs on for `minutes` (counted from the start),
+  then a new page: the time from opening it until the room is drawn and until the lamp's magenta is
+  shown (the current state). Baseline, same lab, same minute: a second view process with the settings
+  before (16 MiB of history, the current state not logged again), opened the same way;
+- **recorder**: CPU seconds and resident memory of the lab's `recorder` (the `.rrd` file) and `view`
+  (live view) processes over the measured window, scaled to one hour, and the recording's size.
 
 Figures on a shared 2-core machine are noisy; the screenshot baseline says how noisy.
+`--serve-old-view ENDPOINT HOST PORT GRPC_PORT` is this script's own baseline process.
 """
 from __future__ import annotations
 
@@ -22,57 +26,86 @@ import argparse
 import json
 import os
 import re
+import signal
 import statistics
+import subprocess
 import sys
 import tempfile
 import threading
 import time
+import urllib.request
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs, rerun_view
 
-from labs import start_lab  # noqa: E402
+from labs import free_port, start_lab, stop_process  # noqa: E402
 from rerun_view import colour_share, room_drawn, viewer_page  # noqa: E402
 
-COLOURS = {"magenta": ((255, 0, 255), {"r": 1, "g": 0, "b": 1}), "green": ((0, 255, 0), {"r": 0, "g": 1, "b": 0})}
-DRAWN_LIMIT, SHOWN_LIMIT = 900.0, 300.0
+from recordings import wait_for_line  # noqa: E402
+
+COLOURS = {"magenta": ((255, 0, 255), [1, 0, 1]), "violet": ((128, 0, 255), [0.5, 0, 1])}
+DRAWN_LIMIT, SHOWN_LIMIT, OLD_LIMIT = 900.0, 300.0, 240.0
+OLD_MEMORY = "16MiB"  # the view's history before (mesh.recorder.view.MEMORY), the current state not logged again
 
 
 def shown(pixels, rgb) -> bool:
     return colour_share(pixels, rgb) * pixels.shape[0] * pixels.shape[1] >= 20
 
 
-def until(check, limit: float, what: str) -> float:
+def until(check, limit: float) -> float | None:
+    """Seconds until `check()` holds; None when it does not within `limit`."""
     started = time.perf_counter()
     while not check():
         if time.perf_counter() - started > limit:
-            raise SystemExit(f"{what}: not within {limit:.0f} s")
+            return None
     return time.perf_counter() - started
 
 
-def colour_delays(lab, view, rounds: int) -> tuple[list[float], list[float]]:
-    """`rounds` colour changes: (delay from the reply to the first page showing it, screenshot times)."""
+def put_colour(http: str, colour: list[float]) -> None:
+    request = urllib.request.Request(f"{http}/light-left/properties/lightColor", method="PUT",
+                                     data=json.dumps(colour).encode(), headers={"Content-Type": "application/json"})
+    with urllib.request.urlopen(request, timeout=60) as r:
+        assert r.status in (200, 204), r.status
+
+
+def colour_delays(http: str, view, changes: int, start: int) -> tuple[list[float], list[float]]:
+    """`changes` colour writes: (seconds from the PUT to the first view showing it, screenshot times)."""
     shots: list[float] = []
 
     def page():
         t = time.perf_counter()
-        px = view.pixels()
+        px = view.view_pixels()
         shots.append(time.perf_counter() - t)
         return px
 
     delays = []
-    for k in range(rounds):
-        name = ("magenta", "green")[k % 2]
+    for k in range(start, start + changes):
+        name = ("magenta", "violet")[k % 2]
         rgb, value = COLOURS[name]
-        r = lab.cli("invoke", "light-left", "setColor", json.dumps(value), timeout=120)
-        assert r.returncode == 0, r.stderr
-        delays.append(until(lambda: shown(page(), rgb), SHOWN_LIMIT, f"the lamp's {name} in the view"))
+        put_colour(http, value)
+        delay = until(lambda: shown(page(), rgb), SHOWN_LIMIT)
+        if delay is None:
+            raise SystemExit(f"the lamp's {name} not in the view within {SHOWN_LIMIT:.0f} s")
+        delays.append(delay)
     return delays, shots
+
+
+def late_viewer(url: str, limit: float) -> tuple[float | None, float | None]:
+    with viewer_page(url) as view:
+        return current_after(view, limit)
+
+
+def current_after(view, limit: float) -> tuple[float | None, float | None]:
+    """A page just opened: (seconds until the room is drawn, until the lamp's magenta is shown), None:
+    not within `limit`."""
+    opened = time.perf_counter()
+    drawn = until(lambda: room_drawn(view.pixels()), limit)
+    current = until(lambda: shown(view.view_pixels(), COLOURS["magenta"][0]), limit)
+    return drawn, None if current is None else time.perf_counter() - opened
 
 
 def process_usage(session: int, title: str) -> tuple[float, int]:
     """CPU seconds and resident bytes of the lab's process titled `title` (in the lab's session)."""
-    tick, page = os.sysconf("SC_CLK_TCK"), os.sysconf("SC_PAGE_SIZE")
     for pid in filter(str.isdigit, os.listdir("/proc")):
         try:
             cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
@@ -80,59 +113,121 @@ def process_usage(session: int, title: str) -> tuple[float, int]:
         except OSError:
             continue
         if cmdline.startswith(title) and int(stat[3]) == session:
-            return (int(stat[11]) + int(stat[12])) / tick, int(stat[21]) * page
+            return pid_usage(int(pid))
     raise SystemExit(f"no process {title!r} in the lab")
+
+
+def pid_usage(pid: int) -> tuple[float, int]:
+    tick, page = os.sysconf("SC_CLK_TCK"), os.sysconf("SC_PAGE_SIZE")
+    stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(stat[11]) + int(stat[12])) / tick, int(stat[21]) * page
 
 
 def busy(lab, stop: threading.Event) -> None:
     while not stop.is_set():
-        lab.cli("workflow", "cube", timeout=900)
+        if lab.cli("workflow", "cube", timeout=900).returncode != 0:
+            stop.wait(5.0)  # a refused run: not a loop of process starts
+
+
+def old_view(lab, tmp: Path) -> tuple[subprocess.Popen, str]:
+    """The baseline view process on the lab (see `serve_old_view`), and its URL."""
+    log = tmp / "old-view.log"
+    port, grpc = free_port(), free_port()
+    proc = subprocess.Popen([sys.executable, __file__, "--serve-old-view", lab.endpoint, "127.0.0.1", str(port),
+                             str(grpc)], stdout=open(log, "wb"), stderr=subprocess.STDOUT)
+    line = wait_for_line(log, "3D view at", proc, timeout=300)
+    return proc, re.search(r"3D view at (http://\S+)", line).group(1)
+
+
+def serve_old_view(endpoint: str, host: str, port: int, grpc_port: int) -> None:
+    from mesh.fabric.settings import MeshSettings
+    from mesh.recorder.view import run
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    run(MeshSettings(mode="client", connect=(endpoint,)), stop, (host, port), grpc_port, memory=OLD_MEMORY,
+        refresh=None)
 
 
 def summary(values: list[float]) -> str:
-    return f"median {statistics.median(values):.2f} s, max {max(values):.2f} s (n={len(values)})"
+    q = statistics.quantiles(values, n=100, method="inclusive") if len(values) > 1 else values * 99
+    return f"p50 {statistics.median(values):.2f} s, p99 {q[98]:.2f} s, max {max(values):.2f} s (n={len(values)})"
 
 
-def main(minutes: float, rounds: int) -> None:
+def seconds(value: float | None, limit: float) -> str:
+    return f"not within {limit:.0f} s" if value is None else f"{value:.1f} s"
+
+
+def main(minutes: float, changes: int, baseline: bool) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="bench-live-view-"))
     rrd = tmp / "lab.rrd"
-    lab = start_lab(tmp, "iot-lab", http=False, view=True, things={"world", "light-left"},
+    print(f"lab files in {tmp}", flush=True)
+    lab = start_lab(tmp, "iot-lab", http=True, view=True, things={"world", "light-left"},
                     extra_args=("--speed", "max", "--record", str(rrd)))
     stop = threading.Event()
+    old = None
     try:
         url = re.search(r"3D view (http://\S+?),? ", lab.log.read_text()).group(1).rstrip(",")
-        session = lab.proc.pid
         r = lab.cli("invoke", "light-left", "switchOn", timeout=120)
         assert r.returncode == 0, r.stderr
-        usage0 = {t: process_usage(session, t) for t in ("twinmesh: recorder", "twinmesh: world")}
+        if baseline:
+            old, old_url = old_view(lab, tmp)
+        titles = ("twinmesh: recorder", "twinmesh: view")
+        usage0 = {t: process_usage(lab.proc.pid, t) for t in titles}
+        old0 = pid_usage(old.pid) if old else None
         started = time.monotonic()
         threading.Thread(target=busy, args=(lab, stop), daemon=True).start()
         with viewer_page(url) as view:
-            first_drawn = until(lambda: room_drawn(view.pixels()), DRAWN_LIMIT, "the room in the first viewer")
-            first, first_shots = colour_delays(lab, view, rounds)
+            first_drawn = until(lambda: room_drawn(view.pixels()), DRAWN_LIMIT)
+            if first_drawn is None:
+                raise SystemExit(f"the room not drawn in the first viewer within {DRAWN_LIMIT:.0f} s")
+            first, first_shots = colour_delays(lab.http, view, changes, 1)
+        put_colour(lab.http, COLOURS["magenta"][1])  # left alone from here on
+        left_alone = time.monotonic()
+        print(f"first viewer done after {(left_alone - started) / 60:.1f} min; the lamp left magenta", flush=True)
         time.sleep(max(0.0, minutes * 60 - (time.monotonic() - started)))
+        old_at = (time.monotonic() - started) / 60
+        old_drawn, old_current = late_viewer(old_url, OLD_LIMIT) if old else (None, None)
+        late_at = (time.monotonic() - started) / 60
         with viewer_page(url) as view:
-            late_drawn = until(lambda: room_drawn(view.pixels()), DRAWN_LIMIT, "the room in the late viewer")
-            late, late_shots = colour_delays(lab, view, rounds)
+            late_drawn, late_current = current_after(view, DRAWN_LIMIT)
+            late, late_shots = colour_delays(lab.http, view, changes, 1)
         hours = (time.monotonic() - started) / 3600
-        usage1 = {t: process_usage(session, t) for t in usage0}
+        usage1 = {t: process_usage(lab.proc.pid, t) for t in titles}
+        old1 = pid_usage(old.pid) if old else None
     finally:
         stop.set()
+        if old is not None:
+            stop_process(old)
         lab.stop()
-    print(f"iot-lab at --speed max, busy with the cube workflow, {hours * 60:.1f} min; {rounds} colour changes per viewer")
-    print(f"delay, viewer opened at the start:      {summary(first)}; screenshot (baseline) {summary(first_shots)}")
-    print(f"late viewer, opened after {minutes:g} min:    drawn after {late_drawn:.1f} s (first viewer: "
-          f"{first_drawn:.1f} s); delay {summary(late)}; screenshot {summary(late_shots)}")
-    for title, (cpu0, rss0) in usage0.items():
-        cpu1, rss1 = usage1[title]
+    print(f"\niot-lab at --speed max, busy with the cube workflow; measured over {hours * 60:.1f} min")
+    print(f"delay, viewer opened on the fresh lab (room drawn after {first_drawn:.1f} s): {summary(first)}; "
+          f"screenshot (baseline) {summary(first_shots)}")
+    print(f"delay, viewer opened after {late_at:.1f} min: {summary(late)}; screenshot {summary(late_shots)}")
+    print(f"late viewer after {late_at:.1f} min, lamp left alone for {(late_at * 60 - (left_alone - started)) / 60:.1f} "
+          f"min: room drawn {seconds(late_drawn, DRAWN_LIMIT)}, current (lamp magenta) "
+          f"{seconds(late_current, DRAWN_LIMIT)} after opening")
+    if old:
+        print(f"  baseline, the view before ({OLD_MEMORY} of history, state not logged again) opened after "
+              f"{old_at:.1f} min: room drawn "
+              f"{seconds(old_drawn, OLD_LIMIT)}, current {seconds(old_current, OLD_LIMIT)}")
+    rows = [(t, usage0[t], usage1[t]) for t in titles] + ([("baseline view", old0, old1)] if old else [])
+    for title, (cpu0, rss0), (cpu1, rss1) in rows:
         print(f"{title:20s} CPU {(cpu1 - cpu0) / hours:7.0f} s per hour ({(cpu1 - cpu0) / hours / 36:.1f} % of a core), "
               f"memory {rss1 / 2**20:.0f} MiB at the end ({(rss1 - rss0) / 2**20 / hours:+.0f} MiB per hour)")
-    print(f"recording: {rrd.stat().st_size / 2**20 / hours:.1f} MiB per hour ({rrd.stat().st_size / 2**20:.1f} MiB)")
+    size = rrd.stat().st_size / 2**20
+    print(f"recording: {size:.1f} MiB ({size / hours:.0f} MiB per hour)")
 
 
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--serve-old-view"]:
+        endpoint, host, port, grpc = sys.argv[2:6]
+        serve_old_view(endpoint, host, int(port), int(grpc))
+        sys.exit(0)
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--minutes", type=float, default=10.0, help="how long the lab runs before the late viewer")
-    parser.add_argument("--rounds", type=int, default=5, help="colour changes per viewer")
+    parser.add_argument("--changes", type=int, default=20, help="colour changes per delay measurement")
+    parser.add_argument("--no-baseline", action="store_true", help="no second view with the settings before")
     args = parser.parse_args()
-    main(args.minutes, args.rounds)
+    main(args.minutes, args.changes, not args.no_baseline)
