@@ -11,13 +11,15 @@ bolted to the base not tested against the scene, allowed link/body pairs).
 from __future__ import annotations
 
 import functools
+import sys
+import time
 import weakref
 
 import numpy as np
 
 from tdgen.robot import sphere_kernel as kernel
 from tdgen.robot.collision import CollisionWorld
-from tdgen.robot.cores import LAUNCH, compiled_code_dir, compiled_stamp
+from tdgen.robot.cores import LAUNCH, compile_in_background, compiled, compiled_code_dir, compiled_stamp
 from tdgen.robot.link_frames import LinkFrames
 from tdgen.robot.model import Robot
 from tdgen.robot.sphere_kernel import COLLIDES, FREE, UNSURE
@@ -25,6 +27,7 @@ from tdgen.robot.spheres import PAD, SURE_DEPTH, Convex, cover, link_elements, o
 
 __all__ = ["COLLIDES", "FREE", "UNSURE", "FastCollision", "SphereModel"]
 CHUNK = 65536
+LOOK_EVERY = 1.0  # s between a warm model's looks for compiled code that another process is making
 
 
 def _stacked(arrays: list[np.ndarray], trailing: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
@@ -278,20 +281,45 @@ class FastCollision:
     """The exact test's answers at the sphere model's speed: a `CollisionWorld` and its `SphereModel`."""
 
     def __init__(self, world: CollisionWorld, warm: bool = False):
-        """`warm`: load (on a machine's first use: compile, which takes seconds) the one-state code now, not in a
-        planner's first check, whose time budget it would eat. A world that holds `part` of a scene
-        has no self pairs (`CollisionWorld`)."""
+        """`warm`: a planner's model, whose checks have a time budget: the one-state code loaded now, not in
+        a first check. On a machine that has not compiled it yet (`cores.compiled()`), a warm model does
+        not compile here (a minute of a core, its process's other Things held up): it answers with the
+        exact test (the same answers, slower) while the code compiles in a process of its own
+        (`cores.compile_in_background`), and loads the compiled code at its first check after that.
+        A world that holds `part` of a scene has no self pairs (`CollisionWorld`)."""
         self.world = world
         self.spheres = SphereModel(world)
         self.unsure = 0  # configurations left to the exact test so far (a figure for the benchmark)
-        if warm:
-            home = np.clip(np.zeros(len(world.robot.joints)), world.robot.lows(), world.robot.highs())
-            self.spheres.verdict(home)
-            self.spheres.verdicts_here(home[None])
+        self._exact_until = 0.0 if not warm or compiled() else time.monotonic()  # when to look for the code again
+        if self._exact_until:
+            compile_in_background(sys.modules[__name__])
+        elif warm:
+            self.load()
+
+    def load(self) -> None:
+        """Load (or compile, where it is not on disk) the one-state code."""
+        home = np.clip(np.zeros(len(self.world.robot.joints)), self.world.robot.lows(), self.world.robot.highs())
+        self.spheres.verdict(home)
+        self.spheres.verdicts_here(home[None])
+
+    @property
+    def exact_only(self) -> bool:
+        """Whether this model answers with the exact test alone, the compiled code not on disk yet (a warm
+        model on a machine compiling it): looked for at most every `LOOK_EVERY` seconds."""
+        if not self._exact_until or time.monotonic() < self._exact_until:
+            return bool(self._exact_until)
+        if not compiled():
+            self._exact_until = time.monotonic() + LOOK_EVERY
+            return True
+        self._exact_until = 0.0
+        self.load()
+        return False
 
     def colliding(self, q: np.ndarray) -> np.ndarray:
         """(N, n) main-joint values (SI) -> (N,) bool, as `CollisionWorld.colliding` answers."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
+        if self.exact_only:
+            return self.world.colliding(q)
         verdict = self.spheres.verdicts(q)
         out = verdict == COLLIDES
         unsure = np.flatnonzero(verdict == UNSURE)
@@ -302,6 +330,8 @@ class FastCollision:
 
     def collides(self, q: np.ndarray) -> bool:
         """One configuration (n,) SI: as `CollisionWorld.collides` answers (planners' hot path)."""
+        if self.exact_only:
+            return self.world.collides(q)
         verdict = self.spheres.verdict(q)
         if verdict == UNSURE:
             self.unsure += 1
@@ -311,6 +341,8 @@ class FastCollision:
     def first_collision(self, states: np.ndarray) -> bool:
         """Does any of these states (K, n) collide? The spheres judge all at once on this thread; the
         exact test then the unsure ones in the order given (a segment's bisection order), to the first."""
+        if self.exact_only:
+            return any(self.world.collides(state) for state in states)
         unsure = []
         start, size = 0, 4
         while start < len(states):  # growing slices: a colliding segment is usually found out in the first
@@ -329,8 +361,10 @@ class FastCollision:
         """Which states (K, n) the spheres find free with each link and pair grown by its `grow` (m, in the
         order of `grow_radii`): each such one vouches for every configuration whose links and pairs lie within
         that of their place in it; None as soon as one surely collides. Judged in growing slices in the order
-        given, on this thread."""
+        given, on this thread. The exact test alone (`exact_only`) vouches for none."""
         covered = np.zeros(len(states), dtype=bool)
+        if self.exact_only:
+            return covered
         start, size = 0, 4
         while start < len(states):
             verdict = self.spheres.verdicts_here(states[start:start + size], grow)
@@ -384,7 +418,8 @@ def compile_all(wait: bool = True) -> None:
         robot = Robot.load("ur10.urdf")
         world = CollisionWorld(robot, load_scene("table-and-wall"))
         try:
-            fast = FastCollision(world, warm=True)  # the one-thread loop
+            fast = FastCollision(world)
+            fast.load()  # the one-thread loop
             q = np.random.default_rng(0).uniform(robot.lows(), robot.highs(), (64, len(robot.joints)))
             verdict, tips = fast.spheres.verdicts_and_tips(q, robot.ee_link)  # the loop on all cores
             fast.spheres.frames.positions(q, robot.ee_link)  # the tips alone (the exact model's points)
