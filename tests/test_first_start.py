@@ -17,6 +17,9 @@ import numpy as np
 
 from tdgen import sampling
 from tdgen.generate import collision_warnings
+from tdgen.robot import fast_collision
+from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.fast_collision import FastCollision
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import load_scene
 from tdgen.sampling import Samples, random_configurations, sample_workspace
@@ -65,6 +68,39 @@ def test_a_machine_without_the_compiled_model_gets_the_same_workspace_without_wa
     exact = sample_workspace(robot, scene, 2500, seed=6, workers=1, collision_model="exact")
     assert np.array_equal(cold.collision, exact.collision)
     assert np.abs(cold.positions - exact.positions).max() <= 0.001 + 1e-9  # mm
+
+
+def test_a_planner_on_a_machine_without_the_compiled_model_answers_at_once_and_the_same(monkeypatch):
+    """Not compiled yet: a robot's planner compiles nothing in its process (every Thing of the world process
+    would wait for it): it gives the exact test's answers, the compiler started once elsewhere, and takes
+    the compiled model once that is on disk, with the same answers."""
+    robot, scene = Robot.load("ur10.urdf"), load_scene("table-and-wall")
+    on_disk, started, sphere_calls = [False], [], []
+    monkeypatch.setattr(fast_collision, "compiled", lambda: on_disk[0])
+    monkeypatch.setattr(fast_collision, "compile_in_background", lambda module: started.append(module.__name__))
+    monkeypatch.setattr(fast_collision, "LOOK_EVERY", 0.0)
+    here = fast_collision.SphereModel.verdicts_here
+    monkeypatch.setattr(fast_collision.SphereModel, "verdicts_here",
+                        lambda self, *a, **k: sphere_calls.append(1) or here(self, *a, **k))
+    q = random_configurations(robot, 60, 11)
+    world, exact = CollisionWorld(robot, scene), CollisionWorld(robot, scene)
+    try:
+        expected = exact.colliding(q)
+        assert 0 < expected.sum() < len(q), "the configurations are a mix of free and colliding ones"
+        fast = FastCollision(world, warm=True)
+        assert started == ["tdgen.robot.fast_collision"]
+        assert [fast.collides(x) for x in q] == expected.tolist()
+        assert np.array_equal(fast.colliding(q), expected)
+        assert fast.first_collision(q[~expected]) is False and fast.first_collision(q) is True
+        assert not fast.covering(q[:8], np.zeros(len(fast.grow_radii()[0]))).any()  # vouches for nothing
+        assert sphere_calls == [] and fast.exact_only
+        on_disk[0] = True  # the compiler is done
+        assert [fast.collides(x) for x in q] == expected.tolist()
+        assert sphere_calls and not fast.exact_only
+        assert started == ["tdgen.robot.fast_collision"]
+    finally:
+        world.close()
+        exact.close()
 
 
 def _samples(robot: Robot, share: float) -> Samples:
