@@ -6,7 +6,7 @@ Starts `twinmesh up iot-lab --speed max --record FILE` with its live view and HT
 busy (the cube workflow over and over), and measures in headless Chromium (software WebGL):
 
 - **delay**: `changes` times the left lamp's colour written over HTTP (`PUT .../lightColor`, magenta
-  and violet in turn, colours no body of the room has): the wall time from the PUT to the end of the
+  and cyan in turn, colours no body of the room has): the wall time from the PUT to the end of the
   first screenshot of the 3D view that shows the new colour, p50 / p99 / max. Baseline: how long one
   screenshot takes (the figure's resolution: a frame cannot be seen sooner than the page is read).
   Measured in a viewer opened on the fresh lab and again in the late viewer;
@@ -43,7 +43,8 @@ from rerun_view import colour_share, room_drawn, viewer_page  # noqa: E402
 
 from recordings import wait_for_line  # noqa: E402
 
-COLOURS = {"magenta": ((255, 0, 255), [1, 0, 1]), "violet": ((128, 0, 255), [0.5, 0, 1])}
+# channels of 0 or 1 only: the view shades in linear light, which keeps their hue but not a mixed one's
+COLOURS = {"magenta": ((255, 0, 255), [1, 0, 1]), "cyan": ((0, 255, 255), [0, 1, 1])}
 DRAWN_LIMIT, SHOWN_LIMIT, OLD_LIMIT = 900.0, 300.0, 240.0
 OLD_MEMORY = "16MiB"  # the view's history before (mesh.recorder.view.MEMORY), the current state not logged again
 
@@ -80,12 +81,14 @@ def colour_delays(http: str, view, changes: int, start: int) -> tuple[list[float
 
     delays = []
     for k in range(start, start + changes):
-        name = ("magenta", "violet")[k % 2]
+        name = ("magenta", "cyan")[k % 2]
         rgb, value = COLOURS[name]
         put_colour(http, value)
         delay = until(lambda: shown(page(), rgb), SHOWN_LIMIT)
         if delay is None:
-            raise SystemExit(f"the lamp's {name} not in the view within {SHOWN_LIMIT:.0f} s")
+            view.save(Path(tempfile.gettempdir()) / "bench-live-view-failed.png")
+            raise SystemExit(f"the lamp's {name} not in the view within {SHOWN_LIMIT:.0f} s (the page: "
+                             f"{tempfile.gettempdir()}/bench-live-view-failed.png)")
         delays.append(delay)
     return delays, shots
 
@@ -134,7 +137,7 @@ def old_view(lab, tmp: Path) -> tuple[subprocess.Popen, str]:
     log = tmp / "old-view.log"
     port, grpc = free_port(), free_port()
     proc = subprocess.Popen([sys.executable, __file__, "--serve-old-view", lab.endpoint, "127.0.0.1", str(port),
-                             str(grpc)], stdout=open(log, "wb"), stderr=subprocess.STDOUT)
+                             str(grpc)], stdout=open(log, "wb"), stderr=subprocess.STDOUT, start_new_session=True)
     line = wait_for_line(log, "3D view at", proc, timeout=300)
     return proc, re.search(r"3D view at (http://\S+)", line).group(1)
 
