@@ -17,7 +17,7 @@ import numpy as np
 
 from tdgen import sampling
 from tdgen.generate import collision_warnings
-from tdgen.robot import fast_collision
+from tdgen.robot import fast_collision, points_csv
 from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.fast_collision import FastCollision
 from tdgen.robot.model import Robot
@@ -101,6 +101,22 @@ def test_a_planner_on_a_machine_without_the_compiled_model_answers_at_once_and_t
     finally:
         world.close()
         exact.close()
+
+
+def test_a_first_starts_points_csv_is_the_same_file_without_the_compiled_formatter(monkeypatch):
+    """Not compiled yet: points.csv is written without compiling its formatter, byte for byte the file the
+    compiled one writes (rounding half to even at the last decimal, no `-0.000`)."""
+    robot = Robot.load("ur10.urdf")
+    rng = np.random.default_rng(5)
+    q = random_configurations(robot, 3000, 5)
+    positions = rng.uniform(-1500.0, 1500.0, (len(q), 3))
+    positions[:40] = rng.integers(-3000, 3000, (40, 3)) / 2000.0  # ties at the last decimal: x.xxx5
+    positions[40:50] = [-0.0004, -0.0005, 0.0]
+    collision = rng.random(len(q)) < 0.4
+    compiled_file = points_csv.encode(robot, positions, collision, q, compile_here=True)
+    monkeypatch.setattr(points_csv, "compiled", lambda: False)
+    assert points_csv.encode(robot, positions, collision, q) == compiled_file
+    assert b"-0.000" not in compiled_file
 
 
 def _samples(robot: Robot, share: float) -> Samples:

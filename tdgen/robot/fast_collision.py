@@ -27,6 +27,7 @@ from tdgen.robot.spheres import PAD, SURE_DEPTH, Convex, cover, link_elements, o
 
 __all__ = ["COLLIDES", "FREE", "UNSURE", "FastCollision", "SphereModel"]
 CHUNK = 65536
+BACKGROUND_NICE = 10  # the background compile's niceness
 LOOK_EVERY = 1.0  # s between a warm model's looks for compiled code that another process is making
 
 
@@ -423,7 +424,7 @@ def compile_all(wait: bool = True) -> None:
             q = np.random.default_rng(0).uniform(robot.lows(), robot.highs(), (64, len(robot.joints)))
             verdict, tips = fast.spheres.verdicts_and_tips(q, robot.ee_link)  # the loop on all cores
             fast.spheres.frames.positions(q, robot.ee_link)  # the tips alone (the exact model's points)
-            points_csv.encode(robot, tips * 1000.0, verdict == COLLIDES, q)
+            points_csv.encode(robot, tips * 1000.0, verdict == COLLIDES, q, compile_here=True)
             ForwardKinematics(robot).positions(q[0])
         finally:
             world.close()
@@ -431,4 +432,7 @@ def compile_all(wait: bool = True) -> None:
 
 
 if __name__ == "__main__":  # `cores.compile_in_background`
+    import os
+
+    os.nice(BACKGROUND_NICE)  # a lab starting beside it comes first: it does not wait for this compile
     compile_all(wait=False)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tdgen.robot.cores import LAUNCH, njit, prange
+from tdgen.robot.cores import LAUNCH, compiled, njit, prange
 
 if TYPE_CHECKING:
     from tdgen.robot.model import Robot
@@ -22,16 +22,21 @@ if TYPE_CHECKING:
 HEADER = ["x", "y", "z", "collision"]  # the columns every reader relies on; the joints follow
 
 
-def encode(robot: Robot, positions: np.ndarray, collision: np.ndarray, q: np.ndarray) -> bytearray:
+def encode(robot: Robot, positions: np.ndarray, collision: np.ndarray, q: np.ndarray,
+           compile_here: bool | None = None) -> bytearray:
     """The file's bytes: positions in mm with 3 decimals, collision 0/1, then each joint of q (SI) in deg
     or mm with 6 decimals (each value rounded half to even at its last decimal).
 
     Two passes on all cores: each block's length, then each block formatted where it starts, into the
-    one buffer returned: no join of per-block buffers, no numpy savetxt (both slower: docs/benchmarks.md)."""
+    one buffer returned: no join of per-block buffers, no numpy savetxt (both slower: docs/benchmarks.md).
+    On a machine whose compiled code is not on disk yet (`cores.compiled`), unless `compile_here`, the
+    same bytes from `encode_uncompiled`: compiling would hold a first workspace up longer."""
     joints = np.ascontiguousarray(robot.to_user_units(q), dtype=float).reshape(len(q), len(robot.joints))
     header = (",".join([*HEADER, *(j.name for j in robot.joints)]) + "\n").encode()
     positions = np.ascontiguousarray(positions, dtype=float)
     collision = np.asarray(collision, dtype=np.bool_)
+    if not (compiled() if compile_here is None else compile_here):
+        return bytearray(header + encode_uncompiled(positions, collision, joints))
     with LAUNCH:
         sizes = _block_sizes(positions, collision, joints, BLOCK_ROWS, _POW10)
         starts = len(header) + np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
@@ -40,6 +45,24 @@ def encode(robot: Robot, positions: np.ndarray, collision: np.ndarray, q: np.nda
         _format_blocks(positions, collision, joints, np.frombuffer(out, dtype=np.uint8), starts, BLOCK_ROWS, _POW10,
                        _PAIRS)
     return out
+
+
+def encode_uncompiled(positions: np.ndarray, collision: np.ndarray, joints: np.ndarray) -> bytes:
+    """`encode`'s rows, the same bytes, by numpy and one `%` of Python's: nothing to compile, several times
+    slower than the compiled code once that is there."""
+    n = len(positions)
+    columns = [(np.rint(positions[:, c] * 1e3).astype(np.int64), 3) for c in range(3)]
+    columns += [(np.rint(joints[:, c] * 1e6).astype(np.int64), 6) for c in range(joints.shape[1])]
+    args = np.empty((n, 3 * len(columns) + 1), dtype=object)
+    for k, (v, d) in enumerate(columns):
+        at = 3 * k + (1 if k >= 3 else 0)  # the collision flag after x, y, z
+        whole, part = np.divmod(np.abs(v), 10 ** d)
+        args[:, at] = np.where(v < 0, "-", "")
+        args[:, at + 1] = whole.tolist()
+        args[:, at + 2] = part.tolist()
+    args[:, 9] = collision.astype(np.int64).tolist()
+    row = ",".join(["%s%d.%03d"] * 3 + ["%d"] + ["%s%d.%06d"] * joints.shape[1]) + "\n"
+    return ((row * n) % tuple(args.ravel().tolist())).encode()
 
 
 BLOCK_ROWS = 32_768  # rows one core measures, then formats, at a time
