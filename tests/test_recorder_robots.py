@@ -280,7 +280,7 @@ def test_a_world_that_takes_a_robot_over_clears_the_things_model(tmp_path):
 
 
 OWN_SCENE = {"name": "table-and-wall", "bodies": [
-    {"type": "urdf", "name": "table", "urdf": "pybullet_data:table/table.urdf"},
+    {"type": "urdf", "name": "table", "urdf": "pybullet_data:table/table.urdf", "scale": 0.8},
     {"type": "box", "name": "wall", "size": [2.0, 0.1, 1.6], "position": [0.0, 0.6, 0.8], "rgba": [0.8, 0.3, 0.2, 1.0]},
     {"type": "cylinder", "name": "bin", "radius": 0.1, "length": 0.3, "position": [0.5, -0.3, 0.775],
      "rpy": [0.0, 0.0, 90.0]}]}
@@ -309,6 +309,7 @@ def test_a_robot_simulated_apart_is_drawn_in_its_own_world_with_its_scene(tmp_pa
     assert latest(path, "/robots/arm/scene/wall", "Boxes3D:half_sizes") == [pytest.approx([1.0, 0.05, 0.8])]
     assert latest(path, "/robots/arm/scene/bin", "Cylinders3D:radii") == [pytest.approx(0.1)]
     assert latest(path, "/robots/arm/scene/table/base", "Transform3D:parent_frame") == ["tf#/robots/arm"]
+    assert latest(path, "/robots/arm/scene/table/base", "Transform3D:scale") == [pytest.approx([0.8, 0.8, 0.8])]
     assert shared_frames(path) == {}
 
 

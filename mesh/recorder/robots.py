@@ -359,7 +359,7 @@ class RobotDrawer:
             file = scene_urdf(str(body["urdf"]))
             drawn = DrawnRobot.load(label, file.read_text(), path, file.parent,
                                     frame_prefix=f"{own_prefix(robot)}scene/{label}/")
-            drawn.draw(self.rec, pose, own_frame(robot))
+            drawn.draw(self.rec, pose, own_frame(robot), float(body.get("scale", 1.0)))
             return
         rgba = tuple(body.get("rgba", (0.7, 0.7, 0.7, 1.0)))
         if kind == "box":

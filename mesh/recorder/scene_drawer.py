@@ -116,14 +116,15 @@ class DrawnRobot:
         joints = {j.name: j for j in tree.joints() if j.joint_type != "fixed"}
         return cls(name, root, tree, joints, f"{prefix}{tree.root_link().name}", missing)
 
-    def draw(self, rec, base: Pose, parent_frame: str = SCENE_FRAME) -> None:
+    def draw(self, rec, base: Pose, parent_frame: str = SCENE_FRAME, scale: float = 1.0) -> None:
         """Its geometry and zero-pose joints (static), primitives solid, the base placed in `parent_frame`
-        (the lab's scene frame, or the frame of a robot's own world)."""
+        (the lab's scene frame, or the frame of a robot's own world) and scaled as a whole by `scale`
+        (a scene's URDF body: pybullet's `globalScaling`, link origins and geometry alike)."""
         chunks, filled = self.static_chunks()
         rec.send_chunks(chunks)
         for path, archetype in filled:
             rec.log(path, getattr(rr, archetype).from_fields(fill_mode="solid"), static=True)
-        rec.log(f"{self.root}/base", _placement(base, self.base_frame, parent_frame), static=True)
+        rec.log(f"{self.root}/base", _placement(base, self.base_frame, parent_frame, scale), static=True)
 
     def static_chunks(self) -> tuple[list, list[tuple[str, str]]]:
         """The URDF's visual geometry and zero-pose joint transforms moved under `root`, and the
@@ -429,6 +430,6 @@ def _eye(bases: list, least: float = 1.0):
                              eye_up=(0.0, 0.0, 1.0))
 
 
-def _placement(pose: Pose, child_frame: str, parent_frame: str = SCENE_FRAME) -> rr.Transform3D:
+def _placement(pose: Pose, child_frame: str, parent_frame: str = SCENE_FRAME, scale: float = 1.0) -> rr.Transform3D:
     return rr.Transform3D(translation=pose.p, quaternion=rr.Quaternion(xyzw=pose.q), parent_frame=parent_frame,
-                          child_frame=child_frame)
+                          child_frame=child_frame, scale=None if scale == 1.0 else scale)
