@@ -23,7 +23,7 @@ from mesh.fabric.settings import MeshSettings
 from mesh.messages import relations
 from mesh.messages.lab import LabStatus
 from mesh.wot.problem import Problem, Unavailable
-from tdgen.robot.cores import compiled, compiled_code_dir
+from tdgen.robot.cores import compiled, first_compile_notice
 from tdgen.service import THING as TDGEN_THING
 
 PROGRESS_EVERY = 10.0  # s between `up`'s lines saying what it still waits for
@@ -248,8 +248,7 @@ def wait_ready(settings: MeshSettings, open_client: Callable, things: list[str] 
     deadline = time.monotonic() + timeout
     missing: list[str] = list(things or ["the lab's status"])
     if things is not None and TDGEN_THING in things and not compiled():
-        progress(f"first start on this machine: the collision model compiles once (10-20 s of a core, beside the "
-                 f"first workspaces' sampling; kept in {compiled_code_dir()})")
+        progress(first_compile_notice())
     rounds = None if things is None else _ThingRounds(settings, things, http)
     said = time.monotonic()
     while True:

@@ -48,7 +48,7 @@ _keep_compiled_code()
 
 from numba import njit, prange  # noqa: E402 - after the cache's place is set
 
-__all__ = ["LAUNCH", "compiled_code_dir", "njit", "prange", "user_cache"]
+__all__ = ["LAUNCH", "compiled_code_dir", "first_compile_notice", "njit", "prange", "user_cache"]
 
 
 COMPILED_MODULES = ("sphere_kernel.py", "points_csv.py", "kinematics.py")  # ours that numba compiles
@@ -71,6 +71,14 @@ def compiled_stamp() -> Path:
 def compiled() -> bool:
     """Is our compiled code on disk (a first call loads it in a fraction of a second instead of compiling it)?"""
     return compiled_stamp().exists()
+
+
+def first_compile_notice() -> str:
+    """What a first start says of the compile (`compiled()` false): that it happens once, what it costs,
+    that nothing waits for it, and where it is kept."""
+    return ("first start on this machine: the collision model compiles once, in the background (about a minute "
+            "of one core); the lab does not wait for it: until then, robots and tdgen check collisions with "
+            f"pybullet's exact test (the same answers, slower); kept in {compiled_code_dir()}")
 
 
 _started = threading.Event()
