@@ -57,6 +57,8 @@ def _agreement(robot: Robot, scene) -> tuple[np.ndarray, np.ndarray, FastCollisi
         world.close()
 
 
+@pytest.mark.lab  # the whole zoo, meshes of thousands of triangles: minutes, the lab layer
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(ZOO))
 def test_every_zoo_arm_gets_the_exact_tests_answers(name):
     urdf, options, _, _ = ZOO[name]

@@ -102,17 +102,13 @@ def test_the_resolution_bounds_how_far_any_point_moves_between_two_checked_state
         for _ in range(20):
             a, b = rng.uniform(ur10.lows(), ur10.highs(), (2, len(ur10.joints)))
             n = checker.subdivisions(a, b)
-            worst = 0.0
-            for k in range(n):
-                corners = []
-                for q in (a + (b - a) * k / n, a + (b - a) * (k + 1) / n):
-                    world._set(world._values(q[None])[0])
-                    pts = []
-                    for link in range(pb.getNumJoints(world.body, physicsClientId=world.client)):
-                        pts.append(pb.getLinkState(world.body, link, computeForwardKinematics=True,
-                                                   physicsClientId=world.client)[4])
-                    corners.append(np.array(pts))
-                worst = max(worst, float(np.max(np.linalg.norm(corners[1] - corners[0], axis=1))))
+            frames = []  # every link's frame at each of the n + 1 checked states, each state measured once
+            for k in range(n + 1):
+                world._set(world._values((a + (b - a) * k / n)[None])[0])
+                frames.append([pb.getLinkState(world.body, link, computeForwardKinematics=True,
+                                               physicsClientId=world.client)[4]
+                               for link in range(pb.getNumJoints(world.body, physicsClientId=world.client))])
+            worst = float(np.max(np.linalg.norm(np.diff(np.array(frames), axis=0), axis=2)))
             assert worst * 1000 <= STEP_MM + 1e-6, (worst, n)
     finally:
         world.close()

@@ -229,6 +229,7 @@ print(json.dumps({"key": key, "cached": cached, "description": td["description"]
 """
 
 
+@pytest.mark.lab  # three processes and a copy of the code, its compiled loops compiled again: minutes on a busy machine
 def test_a_cached_td_is_used_only_while_the_code_that_made_it_is_the_same(tmp_path):
     """The tdgen cache key is derived, never bumped by hand: the same twin twice is one generation,
     and an edit to the TD-building code (here, its description) gives a fresh TD, not the cached one."""

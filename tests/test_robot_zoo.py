@@ -35,7 +35,8 @@ from tdgen.robot.kinematics import ForwardKinematics
 from tdgen.robot.model import Robot, RobotError
 from tdgen.robot.workspace import WorkspaceError
 
-pytestmark = pytest.mark.slow  # fifteen arms, each generated and solved 200 times
+# fifteen arms, each generated and solved 200 times: minutes of CPU, so the lab layer's, not the unit layer's
+pytestmark = [pytest.mark.lab, pytest.mark.slow]
 
 TARGETS = 200
 TOL_MM = 0.01
@@ -250,7 +251,6 @@ def _free_goal(http: httpx.Client, td: dict, joints: dict) -> dict[str, float]:
     return {j: round(float(nearest[j]), 3) for j in joints}
 
 
-@pytest.mark.lab
 def test_every_zoo_arm_joins_a_lab_gets_its_td_generated_and_moves(lab):
     names = sorted(ZOO)
     moved, refused = [], {}
