@@ -98,11 +98,11 @@ def measure(label: str, checkout: Path, root: Path, scene: str, reuse: Path | No
         env["PYTHONPATH"] = str(checkout)
     began = time.perf_counter()
     cold = _start(bin_dir, env, scene, root / "lab.log")
-    load = os.getloadavg()[0]
+    print(f"  cold {cold:6.1f} s (load average {os.getloadavg()[0]:.1f})", flush=True)
     compiled = _compile_done(root / "xdg-cache" / "twinmesh" / "numba") - began
+    print(f"  compiled in the background {compiled:6.1f} s after `up` (load average {os.getloadavg()[0]:.1f})", flush=True)
     warm = _start(bin_dir, env, scene, root / "lab.log")
-    print(f"  cold {cold:6.1f} s (load average {load:.1f})   compiled in the background {compiled:6.1f} s after `up`   "
-          f"warm {warm:6.1f} s (load average {os.getloadavg()[0]:.1f}; log {root / 'lab.log'})", flush=True)
+    print(f"  warm {warm:6.1f} s (load average {os.getloadavg()[0]:.1f}; log {root / 'lab.log'})", flush=True)
     return cold, compiled, warm
 
 
