@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from labs import start_lab
 from tdschema import assert_valid_td
+from waiting import always
 
 from devices.sim.robot_twin import workspace_from_csv
 from mesh.messages.relations import POINTS, SCENE
@@ -288,8 +289,8 @@ def test_a_pan_tilt_refuses_angles_out_of_range_and_pans_until_stopped(lab, http
         assert http.post("/pan-tilt-2/actions/stopMovement").status_code in (200, 204)
         stopped = http.get("/pan-tilt-2/properties/panPosition").json()
         assert -90 < stopped < 0
-        time.sleep(0.3)
-        assert http.get("/pan-tilt-2/properties/panPosition").json() == stopped
+        always(lambda: http.get("/pan-tilt-2/properties/panPosition").json() == stopped, 0.3,
+               what="the pan stays where it stopped")
     finally:
         http.put("/world/properties/speed", json=0)
     assert http.post("/pan-tilt-2/actions/panContinuously", json=15).status_code in (200, 204)

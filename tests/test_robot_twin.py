@@ -12,6 +12,7 @@ import pytest
 from labs import free_port
 from scipy.spatial.transform import Rotation
 from tdschema import assert_valid_td
+from waiting import eventually
 
 from devices.planning.moves import TdFrame
 from devices.sim.pybullet_world import World
@@ -377,9 +378,7 @@ def test_a_failed_generation_is_reported_and_explains_the_refusals(mesh, twin, t
         # the URDF the service would find is not the robot's: it must not generate from it
         stack.enter_context(RobotThing(stack.enter_context(open_session(mesh)), mesh, twin,
                                        urdf="kuka_iiwa/model.urdf", samples=SAMPLES))
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and twin.workspace_error is None:
-            time.sleep(0.05)
+        eventually(lambda: twin.workspace_error is not None, timeout=60, what="the twin told of the failed generation")
         assert service.robots()["ur10"]["status"] == "failed", service.robots()
         assert "differs" in service.robots()["ur10"]["error"] and "differs" in twin.workspace_error
         with pytest.raises(Problem) as err:
