@@ -17,9 +17,10 @@ import numpy as np
 
 from tdgen import sampling
 from tdgen.generate import collision_warnings
-from tdgen.robot import fast_collision, points_csv
+from tdgen.robot import fast_collision, kinematics, points_csv
 from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.fast_collision import FastCollision
+from tdgen.robot.kinematics import ForwardKinematics
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import load_scene
 from tdgen.sampling import Samples, random_configurations, sample_workspace
@@ -117,6 +118,22 @@ def test_a_first_starts_points_csv_is_the_same_file_without_the_compiled_formatt
     monkeypatch.setattr(points_csv, "compiled", lambda: False)
     assert points_csv.encode(robot, positions, collision, q) == compiled_file
     assert b"-0.000" not in compiled_file
+
+
+def test_a_first_starts_kinematics_compile_nothing_and_answer_the_same(monkeypatch):
+    """Not compiled yet: a robot's position and Jacobians (its Thing publishes the position at once) come
+    from the walk's Python function, the same numbers, and the compiler is started elsewhere."""
+    robot = Robot.load("ur10.urdf")
+    q = random_configurations(robot, 50, 2)
+    compiled_answer = ForwardKinematics(robot).poses_and_jacobians(q)
+    started = []
+    monkeypatch.setattr(kinematics, "compiled", lambda: False)
+    monkeypatch.setattr(kinematics, "compile_in_background", lambda module: started.append(module.__name__))
+    monkeypatch.setattr(kinematics, "_compiled_at", [0.0, 0.0])
+    assert kinematics._chain_code() is kinematics._chain.py_func
+    for compiled_part, python_part in zip(compiled_answer, ForwardKinematics(robot).poses_and_jacobians(q)):
+        np.testing.assert_allclose(python_part, compiled_part, rtol=0, atol=1e-12)
+    assert started == ["tdgen.robot.fast_collision"]
 
 
 def _samples(robot: Robot, share: float) -> Samples:

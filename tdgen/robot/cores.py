@@ -12,6 +12,7 @@ of ours takes `njit` and `prange` from here: the one place that says where, befo
 """
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import threading
@@ -21,6 +22,7 @@ from types import ModuleType
 import platformdirs
 
 LAUNCH = threading.Lock()
+_started = threading.Event()  # a background compile was started by this process
 
 
 def user_cache() -> Path:
@@ -58,6 +60,11 @@ def compiled_stamp() -> Path:
     """The file `fast_collision.compile_all` writes once it has compiled everything, named after what the
     compiled code depends on (our compiled modules' sources, numba, Python, the machine), so that a new
     version, or another machine sharing the home directory, compiles afresh."""
+    return compiled_code_dir() / f"twinmesh-compiled-{_sources_hash()}"
+
+
+@functools.cache
+def _sources_hash() -> str:
     import hashlib
     import platform
     from importlib.metadata import version
@@ -65,12 +72,23 @@ def compiled_stamp() -> Path:
     h = hashlib.sha256(f"{version('numba')} {sys.version} {platform.machine()}".encode())
     for name in COMPILED_MODULES:
         h.update((Path(__file__).parent / name).read_bytes())
-    return compiled_code_dir() / f"twinmesh-compiled-{h.hexdigest()[:16]}"
+    return h.hexdigest()[:16]
 
 
 def compiled() -> bool:
-    """Is our compiled code on disk (a first call loads it in a fraction of a second instead of compiling it)?"""
-    return compiled_stamp().exists()
+    """Is our compiled code on disk (a first call loads it in a fraction of a second instead of compiling it),
+    or is this the process compiling it (`compiling_here`)?"""
+    return _compiling_here.is_set() or compiled_stamp().exists()
+
+
+_compiling_here = threading.Event()
+
+
+def compiling_here() -> None:
+    """This process compiles everything (`fast_collision.compile_all`): its code uses the compiled functions
+    (compiling them) instead of their uncompiled stand-ins, and starts no compile elsewhere."""
+    _compiling_here.set()
+    _started.set()
 
 
 def first_compile_notice() -> str:
@@ -81,7 +99,6 @@ def first_compile_notice() -> str:
             f"pybullet's exact test (the same answers, slower); kept in {compiled_code_dir()}")
 
 
-_started = threading.Event()
 
 
 def compile_in_background(module: ModuleType) -> None:

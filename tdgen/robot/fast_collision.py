@@ -19,7 +19,7 @@ import numpy as np
 
 from tdgen.robot import sphere_kernel as kernel
 from tdgen.robot.collision import CollisionWorld
-from tdgen.robot.cores import LAUNCH, compile_in_background, compiled, compiled_code_dir, compiled_stamp
+from tdgen.robot.cores import LAUNCH, compile_in_background, compiled, compiled_code_dir, compiled_stamp, compiling_here
 from tdgen.robot.link_frames import LinkFrames
 from tdgen.robot.model import Robot
 from tdgen.robot.sphere_kernel import COLLIDES, FREE, UNSURE
@@ -409,6 +409,7 @@ def compile_all(wait: bool = True) -> None:
     from tdgen.robot.kinematics import ForwardKinematics
     from tdgen.robot.surroundings import load_scene
 
+    compiling_here()
     folder = compiled_code_dir()
     folder.mkdir(parents=True, exist_ok=True)
     with open(folder / "twinmesh-compiling.lock", "w") as lock:

@@ -12,9 +12,11 @@ multiplier * source + offset, the source being a main joint or a column of `robo
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
-from tdgen.robot.cores import njit  # numba, its compiled code kept in the user's cache
+from tdgen.robot.cores import compile_in_background, compiled, njit  # numba, its compiled code in the user's cache
 from tdgen.robot.model import Robot, UrdfJoint
 
 
@@ -92,6 +94,28 @@ def _chain(v, rots, trans, prismatic, post, pos, axes, linear, rot):
                 linear[s, k, 2] = x * ly - y * lx
 
 
+_LOOK_EVERY = 1.0  # s between looks for the compiled code (`_chain_code`)
+_compiled_at = [0.0, 0.0]  # [when it was found on disk (0: not yet), when last looked for]
+
+
+def _chain_code():
+    """`_chain`, compiled where the machine has our compiled code (`cores.compiled`); until then its Python
+    function, run as it is written (the same steps, slower), while the code compiles in a process of its
+    own (`cores.compile_in_background`): a first start compiles nothing in a process that serves."""
+    if _compiled_at[0]:
+        return _chain
+    now = time.monotonic()
+    if now - _compiled_at[1] >= _LOOK_EVERY:
+        _compiled_at[1] = now
+        if compiled():
+            _compiled_at[0] = now
+            return _chain
+        from tdgen.robot import fast_collision
+
+        compile_in_background(fast_collision)
+    return _chain.py_func
+
+
 class ForwardKinematics:
     """End-effector position (robot base frame, m) and its Jacobian for (N, n) main-joint values."""
 
@@ -159,7 +183,7 @@ class ForwardKinematics:
         n, m = len(q), len(self._rots)
         pos, rot = np.empty((n, 3)), np.empty((n, 3, 3))
         axes, linear = np.empty((n, m, 3)), np.empty((n, m, 3))
-        _chain(v, self._rots, self._translations, self._sliding, self._post, pos, axes, linear, rot)
+        _chain_code()(v, self._rots, self._translations, self._sliding, self._post, pos, axes, linear, rot)
         if with_rotation:
             return pos, axes, linear, rot @ self._post_rot
         return pos, axes, linear
