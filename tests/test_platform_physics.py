@@ -123,7 +123,6 @@ def test_cube_workflow_runs_twice_and_the_colour_sensor_reads_each_cube(platform
     assert events["infrared-sensor-2"] == [True, False, True, False]
     assert events["infrared-sensor-1"] == [True, False, True, False]
     assert not any(b.direction != "stopped" for b in p.belts.values())
-    assert wall < 60  # well under 20 s on an idle 2-core machine; loose for a busy one
 
 
 def test_reset_puts_cubes_back_robots_home_and_belts_stopped(platform):
