@@ -12,12 +12,15 @@ import logging
 import os
 import subprocess
 import sys
+import threading
+import types
 
 import numpy as np
+from waiting import eventually
 
 from tdgen import sampling
 from tdgen.generate import collision_warnings
-from tdgen.robot import fast_collision, kinematics, points_csv
+from tdgen.robot import cores, fast_collision, kinematics, points_csv
 from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.fast_collision import FastCollision
 from tdgen.robot.kinematics import ForwardKinematics
@@ -134,6 +137,33 @@ def test_a_first_starts_kinematics_compile_nothing_and_answer_the_same(monkeypat
     for compiled_part, python_part in zip(compiled_answer, ForwardKinematics(robot).poses_and_jacobians(q)):
         np.testing.assert_allclose(python_part, compiled_part, rtol=0, atol=1e-12)
     assert started == ["tdgen.robot.fast_collision"]
+
+
+DUMMY_COMPILE = """
+import fcntl, json, os, sys
+from tdgen.robot import cores
+held = cores.LOCK_FD in os.environ
+with open(cores.compiled_code_dir() / cores.COMPILING_LOCK, "w") as mine:  # a second lock on the file
+    try:
+        fcntl.flock(mine, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        held = False
+    except BlockingIOError:
+        pass
+(cores.compiled_code_dir() / "ran.json").write_text(json.dumps({"niceness": os.nice(0), "held": held}))
+"""
+
+
+def test_the_background_compile_runs_once_at_low_priority_holding_the_lock(monkeypatch, tmp_path):
+    """Two processes of a lab start it at once: one compile runs, niced, and holds the lock that keeps
+    any other from starting (taken before it starts, so no race while it imports)."""
+    (tmp_path / "dummy_compile.py").write_text(DUMMY_COMPILE)
+    monkeypatch.setenv("TWINMESH_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), *sys.path]))
+    monkeypatch.setattr(cores, "_started", threading.Event())
+    cores.compile_in_background(types.ModuleType("dummy_compile"))  # run by name in the new process
+    ran = cores.compiled_code_dir() / "ran.json"
+    result = eventually(lambda: ran.exists() and json.loads(ran.read_text()), timeout=120, what="the compile's report")
+    assert result == {"niceness": os.nice(0) + cores.BACKGROUND_NICE, "held": True}
 
 
 def _samples(robot: Robot, share: float) -> Samples:

@@ -101,14 +101,31 @@ def first_compile_notice() -> str:
 
 
 
+COMPILING_LOCK = "twinmesh-compiling.lock"  # in compiled_code_dir(), held by the process compiling
+LOCK_FD = "TWINMESH_COMPILING_LOCK_FD"  # the lock's descriptor handed to the background compile
+BACKGROUND_NICE = 10  # the background compile's niceness: a lab starting beside it comes first
+
+
 def compile_in_background(module: ModuleType) -> None:
-    """Compile everything (`module`'s main: `fast_collision.compile_all`) in a process of its own, at most once per process;
-    it goes on if this process ends (a `twinmesh tdgen` that was done first) and does nothing if another
-    such process is at it."""
+    """Compile everything (`module`'s main: `fast_collision.compile_all`) in a process of its own, at low
+    priority, at most once per process; it goes on if this process ends (a `twinmesh tdgen` that was
+    done first). Nothing starts if another process is at it: the lock is taken here and handed to the
+    compiling process, so two processes of a lab starting at once cannot both start one."""
+    import fcntl
     import subprocess
 
     if _started.is_set():
         return
     _started.set()
-    subprocess.Popen([sys.executable, "-m", module.__name__], stdin=subprocess.DEVNULL,
-                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    folder = compiled_code_dir()
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / COMPILING_LOCK, "w") as lock:  # closed here: the lock stays with the child's copy
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return
+        main = (f"import os, runpy; os.nice({BACKGROUND_NICE}); "
+                f"runpy.run_module({module.__name__!r}, run_name='__main__', alter_sys=True)")
+        subprocess.Popen([sys.executable, "-c", main], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL, start_new_session=True, pass_fds=(lock.fileno(),),
+                         env={**os.environ, LOCK_FD: str(lock.fileno())})

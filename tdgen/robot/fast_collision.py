@@ -11,6 +11,7 @@ bolted to the base not tested against the scene, allowed link/body pairs).
 from __future__ import annotations
 
 import functools
+import os
 import sys
 import time
 import weakref
@@ -19,7 +20,16 @@ import numpy as np
 
 from tdgen.robot import sphere_kernel as kernel
 from tdgen.robot.collision import CollisionWorld
-from tdgen.robot.cores import LAUNCH, compile_in_background, compiled, compiled_code_dir, compiled_stamp, compiling_here
+from tdgen.robot.cores import (
+    COMPILING_LOCK,
+    LAUNCH,
+    LOCK_FD,
+    compile_in_background,
+    compiled,
+    compiled_code_dir,
+    compiled_stamp,
+    compiling_here,
+)
 from tdgen.robot.link_frames import LinkFrames
 from tdgen.robot.model import Robot
 from tdgen.robot.sphere_kernel import COLLIDES, FREE, UNSURE
@@ -27,7 +37,6 @@ from tdgen.robot.spheres import PAD, SURE_DEPTH, Convex, cover, link_elements, o
 
 __all__ = ["COLLIDES", "FREE", "UNSURE", "FastCollision", "SphereModel"]
 CHUNK = 65536
-BACKGROUND_NICE = 10  # the background compile's niceness
 LOOK_EVERY = 1.0  # s between a warm model's looks for compiled code that another process is making
 
 
@@ -412,9 +421,11 @@ def compile_all(wait: bool = True) -> None:
     compiling_here()
     folder = compiled_code_dir()
     folder.mkdir(parents=True, exist_ok=True)
-    with open(folder / "twinmesh-compiling.lock", "w") as lock:
+    handed = os.environ.pop(LOCK_FD, None)  # held already: taken by the process that started this one
+    with open(int(handed), "w") if handed else open(folder / COMPILING_LOCK, "w") as lock:
         try:
-            fcntl.flock(lock, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+            if not handed:
+                fcntl.flock(lock, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
         except BlockingIOError:
             return
         robot = Robot.load("ur10.urdf")
@@ -433,7 +444,4 @@ def compile_all(wait: bool = True) -> None:
 
 
 if __name__ == "__main__":  # `cores.compile_in_background`
-    import os
-
-    os.nice(BACKGROUND_NICE)  # a lab starting beside it comes first: it does not wait for this compile
     compile_all(wait=False)
