@@ -1,6 +1,6 @@
 """The live view's stream logs the current state again: what a late viewer gets from the server's
 newest part of the stream is the whole state, not only what changed lately. A real RecordingStream
-writes to a file that rerun-sdk's own reader reads back; the clock is the test's."""
+writes to a file that rerun-sdk's own reader reads back."""
 from pathlib import Path
 
 import numpy as np
@@ -12,12 +12,13 @@ from mesh.recorder.live_state import LiveState
 MAGENTA = 0xFF00FFFF  # a colour as Rerun packs it (RGBA)
 
 
-class Clock:
-    def __init__(self):
-        self.now = 0.0
+BUDGET = 20_000  # bytes logged behind an entity before it is logged again
 
-    def __call__(self) -> float:
-        return self.now
+
+def busy(state: LiveState, n: int) -> None:
+    """Log `n` rows of something else (a moving cube), as a busy lab does."""
+    for i in range(n):
+        state.log("cube", rr.Transform3D(translation=[i, 0, 0]))
 
 
 @pytest.fixture
@@ -25,10 +26,9 @@ def stream(tmp_path):
     path = tmp_path / "live.rrd"
     rec = rr.RecordingStream("live-state-test")
     rec.save(str(path))
-    clock = Clock()
-    state = LiveState(rec, refresh=10.0, clock=clock)
+    state = LiveState(rec, budget=BUDGET)
     state.set_time("time", timestamp=1000.0)
-    yield state, clock, path
+    yield state, path
 
 
 def rows(path: Path, entity: str, component: str) -> list[tuple[float, object]]:
@@ -46,30 +46,37 @@ def close(state: LiveState) -> None:
     state.rec.disconnect()
 
 
-def test_a_state_left_alone_is_logged_again_at_the_present_time_with_its_latest_value(stream):
-    state, clock, path = stream
+def test_a_state_left_alone_is_logged_again_with_its_latest_value_once_enough_is_logged_behind_it(stream):
+    state, path = stream
     state.log("lamp", rr.Boxes3D.from_fields(colors=[MAGENTA]))
-    state.send_columns("cube", [rr.TimeColumn("time", timestamp=[1000.0, 1000.5])],
+    state.send_columns("belt", [rr.TimeColumn("time", timestamp=[1000.0, 1000.5])],
                        rr.Transform3D.columns(translation=np.array([[0.0, 0, 0], [1, 2, 3]])))
-    clock.now = 5.0
-    assert state.log_current_state() == 0  # logged 5 s ago: still among the newest data
-    clock.now = 11.0
-    assert state.log_current_state() == 2
-    clock.now = 15.0
+    assert state.log_current_state() == 0  # just logged: among the newest data
+    busy(state, 30)
+    assert state.log_current_state() == 2  # the lamp and the belt; the cube is logged all the time
     assert state.log_current_state() == 0  # just logged again
     close(state)
     lamp = rows(path, "/lamp", "Boxes3D:colors")
     assert [v for _, v in lamp] == [[MAGENTA], [MAGENTA]]
     assert lamp[1][0] > 1000.5  # at the present time, after everything logged before
-    assert [v for _, v in rows(path, "/cube", "Transform3D:translation")][-1] == [[1.0, 2.0, 3.0]]
+    assert [v for _, v in rows(path, "/belt", "Transform3D:translation")][-1] == [[1.0, 2.0, 3.0]]
+
+
+def test_a_quiet_lab_logs_nothing_again(stream):
+    state, path = stream
+    state.log("lamp", rr.Boxes3D.from_fields(colors=[MAGENTA]))
+    for _ in range(100):
+        assert state.log_current_state() == 0
+    close(state)
+    assert len(rows(path, "/lamp", "Boxes3D:colors")) == 1
 
 
 def test_log_lines_are_not_repeated_and_a_cleared_entity_is_not_brought_back(stream):
-    state, clock, path = stream
+    state, path = stream
     state.log("log", rr.TextLog("the lamp was switched on"))
     state.log("obstacles/crate", rr.Boxes3D(half_sizes=[[0.1, 0.1, 0.1]]))
     state.log("obstacles", rr.Clear(recursive=True))
-    clock.now = 30.0
+    busy(state, 30)
     assert state.log_current_state() == 0
     close(state)
     assert len(rows(path, "/log", "TextLog:text")) == 1
@@ -77,8 +84,8 @@ def test_log_lines_are_not_repeated_and_a_cleared_entity_is_not_brought_back(str
 
 
 def test_static_data_is_left_to_the_server_which_keeps_it_anyway(stream):
-    state, clock, path = stream
+    state, path = stream
     state.log("room", rr.Boxes3D(half_sizes=[[2.0, 2.0, 0.1]]), static=True)
-    clock.now = 30.0
+    busy(state, 30)
     assert state.log_current_state() == 0
     close(state)

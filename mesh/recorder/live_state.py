@@ -1,4 +1,4 @@
-"""The live view's stream with the current state of everything in it sent again every few seconds.
+"""The live view's stream with the current state of everything in it logged again before it is dropped.
 
 The live view's gRPC server keeps only the newest part of the stream for a browser that opens late
 (`mesh.recorder.view.MEMORY`, static data besides), so that the late viewer has little to take in
@@ -6,11 +6,13 @@ before it is current. A state logged once and then left alone (a lamp switched o
 obstacle, a joint at rest, a Thing's TD) would drop out of that part, and the late viewer would draw
 it as it was at the start (or not at all). So the view's RecordingStream is wrapped: every temporal
 value logged through it is remembered per entity and component (the last row of a `send_columns`
-batch), and on each flush an entity not logged for `refresh` seconds (`mesh.recorder.view.REFRESH`)
-is logged again as it is now, at the present time. The server's window then always holds the
-whole current state, however long the lab has run. Log lines (`TextLog`) are history, not state:
-never repeated. A `Clear` forgets what it clears. The `.rrd` file of `--record` is written by
-another recorder, without this.
+batch), the bytes logged are counted, and on each flush an entity behind which `budget` bytes have
+been logged since it was last logged is logged again as it is now, at the present time. With a
+budget well under the server's limit, that newest part always holds the whole current state,
+however long the lab has run; a quiet lab logs nothing again (nothing is dropped), and a browser
+that can hardly keep up is not sent more than it must. Log lines (`TextLog`) are history, not
+state: never repeated. A `Clear` forgets what it clears. The `.rrd` file of `--record` is written
+by another recorder, without this.
 """
 from __future__ import annotations
 
@@ -34,16 +36,19 @@ class _Row:
         return self._array
 
 
+CHUNK_COST = 1024  # bytes counted per log call besides its data: a chunk's schema and metadata on the wire
+
+
 class LiveState:
     """A RecordingStream that logs the current state again on a flush (see the module's docstring);
     everything else is the stream's own (`send_blueprint`, `send_chunks`, `set_sinks`, ...)."""
 
-    def __init__(self, rec: rr.RecordingStream, refresh: float, clock=time.monotonic):
+    def __init__(self, rec: rr.RecordingStream, budget: int):
         self.rec = rec
-        self.refresh = refresh
-        self._clock = clock
+        self.budget = budget
+        self.logged = 0  # bytes of temporal data logged so far (estimated)
         self._state: dict[str, dict[str, Any]] = {}  # entity -> component -> its latest value
-        self._logged: dict[str, float] = {}  # entity -> when it was last logged (clock)
+        self._at: dict[str, int] = {}  # entity -> `logged` when it was last logged
         self._times: dict[str, dict[str, Any]] = {}  # timeline -> the set_time arguments now in force
 
     def __getattr__(self, name: str) -> Any:
@@ -55,31 +60,44 @@ class LiveState:
 
     def log(self, path: str, entity: Any, *extra: Any, static: bool = False, **kwargs: Any) -> None:
         self.rec.log(path, entity, *extra, static=static, **kwargs)
+        if static:
+            if isinstance(entity, rr.Clear):
+                self._forget(path, _recursive(entity))
+            return
+        batches = [b for e in (entity, *extra) for b in _batches(e)]
+        self._count(batches)
         if isinstance(entity, rr.Clear):
             self._forget(path, _recursive(entity))
-        elif not static and not isinstance(entity, rr.TextLog):
-            self._remember(path, [b for e in (entity, *extra) for b in _batches(e)])
+        elif not isinstance(entity, rr.TextLog):
+            self._remember(path, batches)
 
     def send_columns(self, path: str, indexes: Any, columns: Any, **kwargs: Any) -> None:
         self.rec.send_columns(path, indexes, columns, **kwargs)
-        self._remember(path, [_Row(c.component_descriptor(), c.as_arrow_array()[-1].values) for c in columns])
+        arrays = [(c.component_descriptor(), c.as_arrow_array()) for c in columns]
+        self.logged += CHUNK_COST + sum(a.nbytes for _, a in arrays)
+        self._remember(path, [_Row(d, a[-1].values) for d, a in arrays])
 
     def flush(self, *args: Any, **kwargs: Any) -> None:
         self.log_current_state()
         self.rec.flush(*args, **kwargs)
 
     def log_current_state(self) -> int:
-        """Log again each entity left alone for `refresh` s, at the present time; returns how many."""
-        now = self._clock()
-        stale = [path for path, at in self._logged.items() if now - at >= self.refresh]
-        if not stale or "time" not in self._times:
+        """Log again, at the present time, each entity behind which `budget` bytes have been logged;
+        returns how many."""
+        due = [path for path, at in self._at.items() if self.logged - at >= self.budget]
+        if not due or "time" not in self._times:
             return 0
         self.rec.set_time("time", timestamp=time.time())
-        for path in stale:
-            self.rec.log(path, list(self._state[path].values()))
-            self._logged[path] = now
+        for path in due:
+            batches = list(self._state[path].values())
+            self.rec.log(path, batches)
+            self._count(batches)
+            self._at[path] = self.logged
         self.rec.set_time("time", **self._times["time"])  # what is logged next keeps its own time
-        return len(stale)
+        return len(due)
+
+    def _count(self, batches: list[Any]) -> None:
+        self.logged += CHUNK_COST + sum(b.as_arrow_array().nbytes for b in batches)
 
     def _remember(self, path: str, batches: list[Any]) -> None:
         if not batches:
@@ -87,12 +105,12 @@ class LiveState:
         state = self._state.setdefault(path, {})
         for batch in batches:
             state[str(batch.component_descriptor())] = batch
-        self._logged[path] = self._clock()
+        self._at[path] = self.logged
 
     def _forget(self, path: str, recursive: bool) -> None:
         gone = [p for p in self._state if p == path or (recursive and p.startswith(path.rstrip("/") + "/"))]
         for p in gone:
-            del self._state[p], self._logged[p]
+            del self._state[p], self._at[p]
 
 
 def _recursive(clear: rr.Clear) -> bool:

@@ -9,8 +9,8 @@ rerun-sdk: no internet; the page may reach nothing but this host) pointed at tha
 A browser that opens the URL late must be current within seconds, however long the lab has run:
 the gRPC server keeps the static data (the room, the robots' models, the workspaces, the blueprint)
 and only the newest `MEMORY` of the rest (oldest first out), and sends a new viewer the newest data
-first (`newest_first`). `mesh.recorder.live_state.LiveState` logs again every `REFRESH` seconds
-whatever was left alone that long, so that newest part always holds the whole current state, and a
+first (`newest_first`). `mesh.recorder.live_state.LiveState` logs an entity again once `REFRESH`
+bytes have been logged behind it, so that newest part always holds the whole current state, and a
 late viewer has little history to take in before it is current. The `.rrd` file of `--record` is
 a separate recorder and keeps everything.
 
@@ -26,7 +26,7 @@ import time
 from mesh.fabric.settings import MeshSettings
 
 MEMORY = "4MiB"  # the newest part of the stream the gRPC server keeps for a late viewer (static data besides)
-REFRESH = 10.0  # s; an entity left alone this long is logged again, so that part always holds it
+REFRESH = 1 << 20  # bytes: an entity with this much logged behind it is logged again (a quarter of MEMORY)
 
 
 def view_url(address: tuple[str, int], grpc_port: int) -> str:
@@ -41,7 +41,7 @@ def grpc_url(host: str, grpc_port: int) -> str:
 
 
 def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] = ("127.0.0.1", 9090),
-        grpc_port: int = 9876, memory: str = MEMORY, refresh: float | None = REFRESH) -> None:
+        grpc_port: int = 9876, memory: str = MEMORY, refresh: int | None = REFRESH) -> None:
     """Process entry: serve the lab to a web viewer at `address` until `stop` is set. `memory` and
     `refresh` (None: the current state is not logged again) are there for the benchmark's baseline."""
     import rerun as rr
