@@ -154,7 +154,7 @@ class TdgenService:
         self._generator.start()
         self.thing.expose()
         self._declared.append(self.session.declare_subscriber(self.keys.event("*", TWIN_CHANGED), self._twin_changed))
-        directory = Directory(self.session, self.keys, on_join=self._joined)
+        directory = Directory(self.session, self.keys, on_join=self._joined, tokens="twin")  # robots alone
         self._declared.append(directory)
         self.client.presence = directory
         log.info("tdgen service on the mesh (cache %s)", self.cache_dir)

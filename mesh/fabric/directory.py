@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import threading
-from typing import Callable
+from typing import Callable, Literal
 
 from mesh.fabric.drain import Drained
 from mesh.fabric.keys import Keys
@@ -15,18 +15,21 @@ class Directory:
     """Tracks the Things alive under a prefix and tells listeners about joins and leaves.
 
     Listeners run on the directory's own thread, in the order of the joins and leaves (none is
-    dropped): they must not block (hand work to a thread or a loop).
+    dropped): they must not block (hand work to a thread or a loop). `tokens="twin"`: only the Things
+    whose TD links a twin (`Keys.twin`), for a service with nothing to do for the others.
     """
 
-    def __init__(self, session, keys: Keys, on_join: Listener | None = None, on_leave: Listener | None = None):
+    def __init__(self, session, keys: Keys, on_join: Listener | None = None, on_leave: Listener | None = None,
+                 tokens: Literal["alive", "twin"] = "alive"):
         self.keys = keys
+        self._kind = tokens
         self._alive: set[str] = set()
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
         self._on_join = on_join
         self._on_leave = on_leave
-        self._sub = Drained(lambda handler: session.liveliness().declare_subscriber(keys.all_alive(), handler,
-                                                                                  history=True),
+        followed = keys.all_alive() if tokens == "alive" else keys.all_twins()
+        self._sub = Drained(lambda handler: session.liveliness().declare_subscriber(followed, handler, history=True),
                             self._samples, CHANGES_WAITING, False, "directory")
 
     def _samples(self, samples) -> None:
@@ -35,7 +38,7 @@ class Directory:
 
     def _sample(self, sample) -> None:
         parsed = self.keys.parse(str(sample.key_expr))
-        if parsed is None or parsed.kind != "alive":
+        if parsed is None or parsed.kind != self._kind:
             return
         joined = str(sample.kind).endswith("PUT")
         with self._lock:

@@ -41,6 +41,14 @@ class Keys:
     def all_alive(self) -> str:
         return f"{self.prefix}/*"
 
+    def twin(self, thing: str) -> str:
+        """The liveliness token of a Thing whose TD links a twin (a robot): the tdgen service follows
+        these alone, so a mesh of thousands of other devices costs it nothing."""
+        return f"{self.prefix}/{thing}/twin"
+
+    def all_twins(self) -> str:
+        return f"{self.prefix}/*/twin"
+
     def td(self, thing: str) -> str:
         return f"{self.prefix}/{thing}/td"
 
@@ -71,8 +79,8 @@ class Keys:
         rest = parts[len(pre):]
         if len(rest) == 1 and SLUG.match(rest[0]):
             return ParsedKey(rest[0], "alive", "")
-        if len(rest) == 2 and rest[1] == "td":
-            return ParsedKey(rest[0], "td", "")
+        if len(rest) == 2 and rest[1] in ("td", "twin"):
+            return ParsedKey(rest[0], rest[1], "")
         if len(rest) == 3 and rest[1] in KINDS:
             return ParsedKey(rest[0], rest[1], unescaped(rest[2]))
         return None
@@ -81,5 +89,5 @@ class Keys:
 @dataclass(frozen=True)
 class ParsedKey:
     thing: str
-    kind: str  # "alive" | "td" | one of KINDS
+    kind: str  # "alive" | "td" | "twin" | one of KINDS
     name: str

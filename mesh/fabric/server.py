@@ -41,6 +41,7 @@ import msgspec
 from mesh.fabric.keys import NAME, Keys, check_name, check_slug
 from mesh.fabric.session import direct
 from mesh.messages.lab import ActionCall
+from mesh.messages.relations import TWIN
 from mesh.wot.invocation import ID, Invocations
 from mesh.wot.payload import decode_json
 from mesh.wot.problem import BadInput, NotAllowed, NotFound, Problem
@@ -106,6 +107,7 @@ class ExposedThing:
         self._publishers: dict[str, Any] = {}
         self._td_json = b""
         self._exposed = False
+        self._twin_token: Any = None
 
     # --- handlers -------------------------------------------------------------------------
     def on_read(self, prop: str, fn: Read) -> "ExposedThing":
@@ -188,7 +190,18 @@ class ExposedThing:
         self.td = td
         self._td_json = self._served_td()
         if self._exposed:
+            self._mark_twin()
             self.session.put(self.keys.td(self.name), self._td_json, encoding=JSON_ENCODING)
+
+    def _mark_twin(self) -> None:
+        """Hold the twin token (`Keys.twin`) while the TD links a twin: the services that work on twins
+        follow these tokens, not every Thing's TD."""
+        links = any(link.rel == TWIN for link in self.td.links)
+        if links and self._twin_token is None:
+            self._twin_token = self.session.liveliness().declare_token(self.keys.twin(self.name))
+        elif not links and self._twin_token is not None:
+            self._twin_token.undeclare()
+            self._twin_token = None
 
     def _served_td(self) -> bytes:
         served = zenoh_forms(self.td, self.keys.prefix, self.name)
@@ -224,10 +237,14 @@ class ExposedThing:
         self._declared.append(self.session.declare_queryable(f"{k.alive(self.name)}/**", direct(self._route)))
         self._exposed = True
         self._declared.append(self.session.liveliness().declare_token(k.alive(self.name)))
+        self._mark_twin()
         return self
 
     def destroy(self) -> None:
         self._exposed = False
+        if self._twin_token is not None:
+            self._declared.append(self._twin_token)
+            self._twin_token = None
         for d in reversed(self._declared):
             try:
                 d.undeclare()
