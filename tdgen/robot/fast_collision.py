@@ -293,7 +293,7 @@ class FastCollision:
     def __init__(self, world: CollisionWorld, warm: bool = False):
         """`warm`: a planner's model, whose checks have a time budget: the one-state code loaded now, not in
         a first check. On a machine that has not compiled it yet (`cores.compiled()`), a warm model does
-        not compile here (a minute of a core, its process's other Things held up): it answers with the
+        not compile here (every other Thing of its process would wait): it answers with the
         exact test (the same answers, slower) while the code compiles in a process of its own
         (`cores.compile_in_background`), and loads the compiled code at its first check after that.
         A world that holds `part` of a scene has no self pairs (`CollisionWorld`)."""
