@@ -117,12 +117,15 @@ CONNECT_NOTE = ("The lab: --connect ENDPOINT before the command (twinmesh --conn
 @click.option("--secrets", type=click.Path(file_okay=False), metavar="DIR", show_envvar=True,
               help="Where a secure lab's secrets are (implies --secure) [default: $XDG_DATA_HOME/twinmesh/secrets, "
                    "else ~/.local/share/twinmesh/secrets].")
+@click.option("--config", "zenoh_config", type=click.Path(dir_okay=False), metavar="FILE", show_envvar=True,
+              help="A Zenoh configuration file (JSON5, Zenoh's own keys) applied over twinmesh's settings in every "
+                   "process of the lab: limits, lease, keep-alives, buffers (see the docs' scale page).")
 @click.option("-v", "--verbose", count=True,
               help="More logging (-vv for debug); also shows pybullet's own messages (on stderr).")
 @click.version_option(package_name="twinmesh", message="twinmesh %(version)s")
 @click.pass_context
 def main(ctx: click.Context, prefix, connect, listen, mode, multicast, shared_memory, secure, secrets,
-         verbose) -> None:
+         zenoh_config, verbose) -> None:
     """twinmesh: a digital-twin lab for the Web of Things."""
     separate_native_stdout(show=verbose > 0)  # pybullet's C prints never mix into what a command prints
     if verbose:
@@ -133,7 +136,19 @@ def main(ctx: click.Context, prefix, connect, listen, mode, multicast, shared_me
     secrets_dir = _secrets_dir(ctx, secure, secrets)
     ctx.obj = MeshSettings(prefix=prefix, mode=mode or "client", connect=tuple(connect) or (DEFAULT_ENDPOINT,),
                            listen=tuple(listen), multicast=multicast, shared_memory=shared_memory,
-                           secrets=secrets_dir)
+                           secrets=secrets_dir, overrides=_overrides(zenoh_config))
+
+
+def _overrides(path: str | None) -> tuple[tuple[str, str], ...]:
+    """`--config FILE`, read and tried (a key Zenoh does not know, a wrong type: exit 2 here)."""
+    if path is None:
+        return ()
+    from mesh.fabric.settings import ConfigFileError, config_overrides
+
+    try:
+        return config_overrides(path)
+    except ConfigFileError as e:
+        raise usage_exit(str(e)) from None
 
 
 def _secrets_dir(ctx: click.Context, secure: bool, secrets: str | None) -> str | None:

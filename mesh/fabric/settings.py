@@ -70,6 +70,7 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     role: str = "consumer"
     query_timeout: float = 5.0   # reads, writes, TDs
     action_timeout: float = 300.0  # motions return when done, which can take minutes at speed 1
+    overrides: tuple[tuple[str, str], ...] = ()  # (Zenoh config path, JSON value) applied last: `--config FILE`
 
     @property
     def keys(self) -> Keys:
@@ -100,6 +101,8 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
             conf.insert_json5("connect/exit_on_failure", json.dumps({"router": False, "peer": False, "client": True}))
         if self.mode == "router":
             conf.insert_json5("transport/unicast/max_sessions", json.dumps(ROUTER_MAX_SESSIONS))
+        for path, value in self.overrides:
+            conf.insert_json5(path, value)
         return conf
 
     def as_router(self, listen: tuple[str, ...] | None = None, connect: tuple[str, ...] = ()) -> "MeshSettings":
@@ -149,3 +152,51 @@ def router_listen(listen: tuple[str, ...], connect: tuple[str, ...]) -> list[str
         if endpoint not in out and (proto, port) not in wildcard:
             out.append(endpoint)
     return out
+
+
+OWN_KEYS = ("mode", "connect", "listen")  # set by twinmesh's own options in every process: not from a file
+
+
+class ConfigFileError(ValueError):
+    """A `--config` file that cannot be applied; the message names the file and the problem."""
+
+
+def config_overrides(path: str) -> tuple[tuple[str, str], ...]:
+    """The settings of a Zenoh configuration file (JSON5, Zenoh's own format and key names) as
+    (path, JSON value) pairs, applied over twinmesh's own settings in every process of the lab.
+    Objects are merged key by key; a list or a value replaces twinmesh's."""
+    import json5
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            document = json5.load(f)
+    except OSError as e:
+        raise ConfigFileError(f"cannot read the Zenoh config file {path}: {e.strerror}") from None
+    except ValueError as e:
+        raise ConfigFileError(f"the Zenoh config file {path} is not JSON5: {e}") from None
+    if not isinstance(document, dict):
+        raise ConfigFileError(f"the Zenoh config file {path} must hold an object ({{...}})")
+    own = sorted(set(document) & set(OWN_KEYS))
+    if own:
+        raise ConfigFileError(f"the Zenoh config file {path} sets {', '.join(own)}: twinmesh sets these itself "
+                              "(--mode, --connect, --listen, `up --join`)")
+
+    def leaves(value, prefix: str):
+        if isinstance(value, dict) and value:
+            for key, inner in value.items():
+                yield from leaves(inner, f"{prefix}/{key}" if prefix else str(key))
+        else:
+            yield prefix, json.dumps(value)
+
+    overrides = tuple(leaves(document, ""))
+    import zenoh
+
+    for mode in ("client", "router"):  # tried here, not found wrong in each process of a lab
+        conf = MeshSettings(mode=mode).zenoh_config()
+        for key, value in overrides:
+            try:
+                conf.insert_json5(key, value)
+            except zenoh.ZError as e:
+                why = str(e).split(" at /")[0].strip('"').removeprefix('Str("').removesuffix('")')
+                raise ConfigFileError(f"the Zenoh config file {path}: {key} = {value}: {why}") from None
+    return overrides
