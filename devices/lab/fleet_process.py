@@ -12,18 +12,20 @@ from devices.things.fleet import FleetDevice, bind_fleet_device, device_td
 from mesh.fabric.server import ExposedThing
 from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
+from mesh.process import end_now
 
 log = logging.getLogger(__name__)
 
 
 def run(settings: MeshSettings, stop: threading.Event, start: int, end: int, first: int = 1) -> None:
-    """Process entry: serve the fleet's devices `start`..`end - 1` (stations from `first`) until `stop` is set."""
+    """Process entry: serve the fleet's devices `start`..`end - 1` (stations from `first`) until `stop` is set,
+    then end the process at once (`end_now`: its thousands of links close together, not one by one)."""
     ticker = Ticker()
     stations: dict[int, Any] = {}
     with ExitStack() as stack:
         for index in range(start, end):
             if stop.is_set():
-                return
+                end_now()
             device = FleetDevice(index, first)
             session = stack.enter_context(open_session(settings, thing=device.name))
             thing = ExposedThing(session, device_td(device), device.name, settings.keys)
@@ -32,3 +34,5 @@ def run(settings: MeshSettings, stop: threading.Event, start: int, end: int, fir
         ticker.start()
         log.info("fleet: devices %s..%s on the mesh", FleetDevice(start, first).name, FleetDevice(end - 1, first).name)
         stop.wait()
+        ticker.stop()
+        end_now()

@@ -8,6 +8,7 @@ from contextlib import ExitStack, contextmanager
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
 from mesh.fabric.settings import OPEN_ATTEMPT_MS, ROUTER_RUNTIME, MeshSettings
+from mesh.process import end_now
 
 if TYPE_CHECKING:
     import zenoh
@@ -83,7 +84,8 @@ def run_router_process(settings: MeshSettings, stop: threading.Event, listen: Se
     routers at `connect` (another host's lab, for `up --join`).
 
     A router that cannot listen (the port was taken after `up` checked it) logs one line and
-    exits with code 1, so the supervisor stops the lab instead of leaving it without a router.
+    exits with code 1, so the supervisor stops the lab instead of leaving it without a router. Once
+    `stop` is set, the process ends at once (`mesh.process.end_now`): its links close together.
     """
     os.environ.setdefault("ZENOH_RUNTIME", ROUTER_RUNTIME)  # read once, when Zenoh's runtime starts
     import zenoh
@@ -103,7 +105,7 @@ def run_router_process(settings: MeshSettings, stop: threading.Event, listen: Se
                                                         "their access rules (links reconnect)")
                     break
             else:
-                return
+                end_now()
 
 
 def _own_secrets(settings: MeshSettings) -> MeshSettings | None:
