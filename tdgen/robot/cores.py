@@ -17,7 +17,6 @@ import os
 import sys
 import threading
 from pathlib import Path
-from types import ModuleType
 
 import platformdirs
 
@@ -106,7 +105,10 @@ LOCK_FD = "TWINMESH_COMPILING_LOCK_FD"  # the lock's descriptor handed to the ba
 BACKGROUND_NICE = 10  # the background compile's niceness: a lab starting beside it comes first
 
 
-def compile_in_background(module: ModuleType) -> None:
+COMPILES_ALL = "tdgen.robot.fast_collision"  # the module whose main compiles every kernel (`compile_all`)
+
+
+def compile_in_background(module: str = COMPILES_ALL) -> None:
     """Compile everything (`module`'s main: `fast_collision.compile_all`) in a process of its own, at low
     priority, at most once per process; it goes on if this process ends (a `twinmesh tdgen` that was
     done first). Nothing starts if another process is at it: the lock is taken here and handed to the
@@ -125,7 +127,7 @@ def compile_in_background(module: ModuleType) -> None:
         except BlockingIOError:
             return
         main = (f"import os, runpy; os.nice({BACKGROUND_NICE}); "
-                f"runpy.run_module({module.__name__!r}, run_name='__main__', alter_sys=True)")
+                f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)")
         subprocess.Popen([sys.executable, "-c", main], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                          stderr=subprocess.DEVNULL, start_new_session=True, pass_fds=(lock.fileno(),),
                          env={**os.environ, LOCK_FD: str(lock.fileno())})

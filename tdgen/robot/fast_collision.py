@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import functools
 import os
-import sys
 import time
 import weakref
 
@@ -302,7 +301,7 @@ class FastCollision:
         self.unsure = 0  # configurations left to the exact test so far (a figure for the benchmark)
         self._exact_until = 0.0 if not warm or compiled() else time.monotonic()  # when to look for the code again
         if self._exact_until:
-            compile_in_background(sys.modules[__name__])
+            compile_in_background()
         elif warm:
             self.load()
 

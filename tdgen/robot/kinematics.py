@@ -110,9 +110,7 @@ def _chain_code():
         if compiled():
             _compiled_at[0] = now
             return _chain
-        from tdgen.robot import fast_collision
-
-        compile_in_background(fast_collision)
+        compile_in_background()
     return _chain.py_func
 
 
