@@ -21,6 +21,7 @@ the lab and its adapter on the first, `up fleet --join` on the others (each with
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import random
@@ -86,6 +87,34 @@ def _idle_cpu(procs: list[psutil.Process]) -> float:
     a = cpu()
     time.sleep(IDLE_WINDOW)
     return (cpu() - a) / IDLE_WINDOW * 100
+
+
+def _by_role(procs: list[psutil.Process]) -> dict[str, tuple[float, float]]:
+    """CPU seconds so far and RSS (MB) summed by role (`twinmesh: router`, `fleet`, `adapter`, ...)."""
+    out: dict[str, tuple[float, float]] = {}
+    for p in procs:
+        try:
+            title = " ".join(p.cmdline())
+            t, m = p.cpu_times(), p.memory_info().rss / 2**20
+        except psutil.Error:
+            continue
+        role = title.removeprefix("twinmesh: ").split(" ")[0] if title.startswith("twinmesh: ") else "other"
+        cpu, rss = out.get(role, (0.0, 0.0))
+        out[role] = (cpu + t.user + t.system, rss + m)
+    return out
+
+
+def _quiet(base: str, devices: list[str]) -> int:
+    """Every climate sensor's `interval` set to an hour over HTTP: then no device publishes on its own
+    (the issue's idle). Returns how many were set."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    climate = [d for d in devices if d.startswith("climate-")]
+    with httpx.Client(timeout=30) as c, ThreadPoolExecutor(8) as pool:
+        codes = list(pool.map(lambda d: c.put(f"{base}/{d}/properties/interval", json=3600).status_code, climate))
+    bad = [code for code in codes if code not in (200, 204)]
+    assert not bad, f"{len(bad)} writes of interval failed: {bad[:5]}"
+    return len(climate)
 
 
 def _http_reads(base: str, devices: list[str]) -> list[float]:
@@ -243,10 +272,18 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
                 return {"failed": f"not all listed by the adapter within {limit:.0f} s"}
             time.sleep(0.2)
         ready_s = time.monotonic() - started
-        time.sleep(3)
         procs = [p for root in roots for p in _lab_processes(psutil.Process(root.pid))]
+        at_ready = _by_role(procs)
+        time.sleep(3)
         figures = _figures(procs)
-        idle = _idle_cpu(procs)
+        idle = _idle_cpu(procs)  # the climate sensors publishing every second
+        quieted = _quiet(base, devices)
+        time.sleep(3)
+        before = _by_role(procs)
+        quiet = _idle_cpu(procs)  # no device publishing on its own
+        after = _by_role(procs)
+        roles = {role: (at_ready.get(role, (0.0, 0.0))[0], (after[role][0] - before.get(role, (0.0, 0.0))[0])
+                        / IDLE_WINDOW * 100, after[role][1]) for role in after}
         with httpx.Client(timeout=30) as c:
             c.get(f"{base}/things?limit=100")
             things_ms = []
@@ -259,7 +296,8 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
         lights = [d for d in devices if d.startswith("light-")]
         fan = _fan_out(base, lights[0]) if lights else []
         drift = _soak(procs, soak) if soak > 0 else None
-        return {"soak": drift, "ready": ready_s, **figures, "idle": idle, "things": statistics.median(things_ms),
+        return {"soak": drift, "ready": ready_s, **figures, "idle": idle, "quiet": quiet, "quieted": quieted,
+                "roles": roles, "things": statistics.median(things_ms),
                 "http": (_pct(http, 0.5), _pct(http, 0.99)), "zenoh": (_pct(zen, 0.5), _pct(zen, 0.99)),
                 "fan": (_pct(fan, 0.5), _pct(fan, 0.99), len(fan)), "hosts": hosts, "direct": direct}
 
@@ -274,13 +312,15 @@ def row(topology: str, n: int, r: dict) -> str:
     where = (f" ({r['hosts']} hosts{', direct' if r.get('direct') else ', a router each'})"
              if r.get("hosts", 1) > 1 else "")
     return (f"| {topology}{where} | {n:,} | {r['ready']:.1f} s | {per_rss:.0f} MB / {per_fds:,} / {per_thr} "
-            f"({len(fleet)} proc.) | {r['rss'] / 2**20:.0f} MB / {r['fds']:,} / {r['threads']} | {r['idle']:.1f} % | "
+            f"({len(fleet)} proc.) | {r['rss'] / 2**20:.0f} MB ({r['rss'] / 1024 / n:.0f} KiB/device) / {r['fds']:,} / "
+            f"{r['threads']} | {r['idle']:.1f} % / {r['quiet']:.1f} % | "
             f"{r['things']:.1f} ms | {r['http'][0]:.2f} / {r['http'][1]:.2f} ms | "
             f"{r['zenoh'][0]:.2f} / {r['zenoh'][1]:.2f} ms | {r['fan'][0]:.1f} / {r['fan'][1]:.1f} ms ({r['fan'][2]}) |")
 
 
 HEADER = ("| topology | devices | ready | fleet processes: RSS / fds / threads | whole lab: RSS / fds / threads | "
-          "idle CPU (one core) | /things first page | HTTP read p50 / p99 | Zenoh read p50 / p99 | "
+          "idle CPU of one core: sensors publishing / none | /things first page | HTTP read p50 / p99 | "
+          "Zenoh read p50 / p99 | "
           f"fan-out to {OBSERVERS} p50 / p99 (deliveries) |\n|" + "---|" * 10)
 
 
@@ -297,16 +337,21 @@ def main() -> None:
                     "(needs root): the lab on the first, `up fleet --join` on the others")
     ap.add_argument("--direct", action="store_true", help="with --hosts: the other hosts' devices link straight "
                     "to the lab's router (`up fleet --join ENDPOINT --direct`), no router on those hosts")
+    ap.add_argument("--keep", metavar="DIR", help="write the labs' logs into DIR and keep them")
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")] + ([10_000] if args.large else [])
     results: dict[str, dict[int, dict]] = {}
-    with tempfile.TemporaryDirectory() as tmp:
+    with (tempfile.TemporaryDirectory() if not args.keep else contextlib.nullcontext(args.keep)) as tmp:
         for topology in [args.only] if args.only else list(TOPOLOGIES):
             results[topology] = {}
             for n in sizes:
                 r = measure(topology, n, Path(tmp), args.hosts, args.soak, args.ready_limit, args.direct)
                 results[topology][n] = r
                 print(row(topology, n, r), flush=True)
+                if "roles" in r:
+                    print("  by process kind: CPU s until listed; idle % of a core (none publishing); RSS MB: " + "; ".join(
+                        f"{role} {cpu:.1f} s, {idle:.1f} %, {rss:.0f} MB"
+                        for role, (cpu, idle, rss) in sorted(r["roles"].items(), key=lambda kv: -kv[1][0])), flush=True)
                 if r.get("soak"):
                     first, last = r["soak"]["samples"][0], r["soak"]["samples"][-1]
                     hours = r["soak"]["seconds"] / 3600
