@@ -47,9 +47,18 @@ def _keep_compiled_code() -> None:
 
 _keep_compiled_code()
 
-from numba import njit, prange  # noqa: E402 - after the cache's place is set
 
-__all__ = ["LAUNCH", "compiled_code_dir", "first_compile_notice", "njit", "prange", "user_cache"]
+def __getattr__(name: str):
+    """`njit` and `prange`, numba's, imported on first use (after the cache's place is set): numba and what it
+    loads weigh about 70 MB, and `twinmesh up` on every host imports this module for `compiled()` alone."""
+    if name in ("njit", "prange"):
+        import numba
+
+        return getattr(numba, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["LAUNCH", "compiled_code_dir", "first_compile_notice", "user_cache"]  # and njit, prange (above)
 
 
 COMPILED_MODULES = ("sphere_kernel.py", "points_csv.py", "kinematics.py")  # ours that numba compiles

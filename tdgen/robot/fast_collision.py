@@ -274,7 +274,7 @@ class SphereModel:
         passive = np.ascontiguousarray(np.atleast_2d(robot.passive(q)) if robot.passive is not None
                                        else np.zeros((len(q), 0)), dtype=float)
         grow = self._still if grow is None else np.asarray(grow, dtype=float)
-        return kernel.verdicts_packed(q, passive, *self._packed, PAD, SURE_DEPTH, grow)  # type: ignore[call-arg]
+        return kernel.verdicts_packed(q, passive, *self._packed, PAD, SURE_DEPTH, grow)
 
     @functools.cached_property
     def _packed(self) -> tuple:

@@ -499,7 +499,7 @@ def tips(values, parent, origin_r, origin_p, kind, axis, base_r, base_p, tip):
 # the tables and working arrays whole (`t`, `s`), and each such call would count a reference to each of their
 # sixty arrays, twice, several times per configuration: four times the time of a configuration. The arrays are
 # made and held by the callers, which count them once.
-@njit(cache=True, fastmath=FAST, _nrt=False)  # type: ignore[call-overload]
+@njit(cache=True, fastmath=FAST, _nrt=False)
 def _block(lo, hi, values, t, s, still, pad, sure_depth, tip, tips_out, out):
     """Configurations lo..hi on one core: one call per block, the model inlined."""
     for c in range(lo, hi):
@@ -576,7 +576,7 @@ def verdicts_packed(q, passive, main_map, passive_map, offsets, floats, ints, me
     return out
 
 
-@njit(cache=True, fastmath=FAST, _nrt=False)  # type: ignore[call-overload]
+@njit(cache=True, fastmath=FAST, _nrt=False)
 def _rows(q, passive, main_map, passive_map, offsets, t, s, values, pad, sure_depth, grow, out):
     """`verdicts_packed`'s loop, without reference counting (as `_block`)."""
     for c in range(q.shape[0]):
