@@ -18,23 +18,14 @@ import threading
 import numpy as np
 import pybullet as pb
 
+from devices.sim.belt_rules import DEFAULT_SPEED, MAX_SPEED_MM_S, STARTED, STOPPED, belt_speed
 from devices.sim.pybullet_world import Snapshot, World, static_box
 from devices.sim.vec import Vec
-from mesh.wot.problem import BadInput
 
-MAX_SPEED_MM_S = 60.0
-DEFAULT_SPEED = 100
-STARTED = "Conveyor belt started"
-STOPPED = "Conveyor belt stopped"
+__all__ = ["DEFAULT_SPEED", "MAX_SPEED_MM_S", "STARTED", "STOPPED", "Belt", "belt_speed"]
+
 _DIRECTIONS = {1: "forward", -1: "backward", 0: "stopped"}
 
-
-
-def belt_speed(belt: str, value: object) -> int:
-    """A belt's speed as the real lab's TD allows it: an integer from 1 to 100 (%)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value) or not 1 <= value <= 100:
-        raise BadInput(f"{belt}: speed must be an integer from 1 to 100 (%), got {value!r}")
-    return int(value)
 
 class Belt:
     """One belt: `start_forward`, `start_backward`, `stop`, `speed` (1..100 %), thread-safe.

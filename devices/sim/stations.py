@@ -20,9 +20,9 @@ import threading
 import time
 from typing import Callable
 
-from devices.sim.belt import DEFAULT_SPEED, MAX_SPEED_MM_S, STARTED, STOPPED, belt_speed
+from devices.sim.belt_rules import DEFAULT_SPEED, MAX_SPEED_MM_S, STARTED, STOPPED, belt_speed
+from devices.sim.colour_reading import NO_OBJECT, ColorReading, reading_of
 from devices.sim.listeners import Listeners
-from devices.sim.sensors import NO_OBJECT, ColorReading, reading_of
 from mesh.wot.problem import BadInput
 
 TICK = 0.05  # s between two advances of the running belts
