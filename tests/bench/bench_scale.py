@@ -59,18 +59,19 @@ def _lab_processes(root: psutil.Process) -> list[psutil.Process]:
 
 
 def _figures(procs: list[psutil.Process]) -> dict:
-    rss = fds = threads = 0
+    rss = pss = fds = threads = 0
     fleet = []
     for p in procs:
         try:
             m, f, t = p.memory_info().rss, p.num_fds(), p.num_threads()
+            pss += p.memory_full_info().pss  # shared pages (Zenoh's library in each process) counted once
             title = " ".join(p.cmdline())
         except psutil.Error:
             continue
         rss, fds, threads = rss + m, fds + f, threads + t
         if title.startswith("twinmesh: fleet "):
             fleet.append((m, f, t))
-    return {"rss": rss, "fds": fds, "threads": threads, "fleet": fleet}
+    return {"rss": rss, "pss": pss, "fds": fds, "threads": threads, "fleet": fleet}
 
 
 def _idle_cpu(procs: list[psutil.Process]) -> float:
@@ -253,6 +254,7 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
         if why:
             return {"failed": why}
         devices = fleet_names(counts[0])
+        joining = time.monotonic()  # the other hosts' fleets start now
         for i in range(1, hosts):
             if counts[i] <= 0:
                 continue
@@ -272,6 +274,7 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
                 return {"failed": f"not all listed by the adapter within {limit:.0f} s"}
             time.sleep(0.2)
         ready_s = time.monotonic() - started
+        joined_s = time.monotonic() - joining
         procs = [p for root in roots for p in _lab_processes(psutil.Process(root.pid))]
         at_ready = _by_role(procs)
         time.sleep(3)
@@ -296,7 +299,8 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
         lights = [d for d in devices if d.startswith("light-")]
         fan = _fan_out(base, lights[0]) if lights else []
         drift = _soak(procs, soak) if soak > 0 else None
-        return {"soak": drift, "ready": ready_s, **figures, "idle": idle, "quiet": quiet, "quieted": quieted,
+        return {"soak": drift, "ready": ready_s, "joined": joined_s, **figures, "idle": idle, "quiet": quiet,
+                "quieted": quieted,
                 "roles": roles, "things": statistics.median(things_ms),
                 "http": (_pct(http, 0.5), _pct(http, 0.99)), "zenoh": (_pct(zen, 0.5), _pct(zen, 0.99)),
                 "fan": (_pct(fan, 0.5), _pct(fan, 0.99), len(fan)), "hosts": hosts, "direct": direct}
@@ -311,14 +315,17 @@ def row(topology: str, n: int, r: dict) -> str:
     per_thr = sum(t for _, _, t in fleet)
     where = (f" ({r['hosts']} hosts{', direct' if r.get('direct') else ', a router each'})"
              if r.get("hosts", 1) > 1 else "")
-    return (f"| {topology}{where} | {n:,} | {r['ready']:.1f} s | {per_rss:.0f} MB / {per_fds:,} / {per_thr} "
-            f"({len(fleet)} proc.) | {r['rss'] / 2**20:.0f} MB ({r['rss'] / 1024 / n:.0f} KiB/device) / {r['fds']:,} / "
+    joined = f" ({r['joined']:.1f} s after the other hosts' fleets started)" if r.get("hosts", 1) > 1 else ""
+    return (f"| {topology}{where} | {n:,} | {r['ready']:.1f} s{joined} | {per_rss:.0f} MB / {per_fds:,} / {per_thr} "
+            f"({len(fleet)} proc.) | {r['rss'] / 2**20:.0f} MB, PSS {r['pss'] / 2**20:.0f} MB "
+            f"({r['pss'] / 1024 / n:.0f} KiB/device) / {r['fds']:,} / "
             f"{r['threads']} | {r['idle']:.1f} % / {r['quiet']:.1f} % | "
             f"{r['things']:.1f} ms | {r['http'][0]:.2f} / {r['http'][1]:.2f} ms | "
             f"{r['zenoh'][0]:.2f} / {r['zenoh'][1]:.2f} ms | {r['fan'][0]:.1f} / {r['fan'][1]:.1f} ms ({r['fan'][2]}) |")
 
 
-HEADER = ("| topology | devices | ready | fleet processes: RSS / fds / threads | whole lab: RSS / fds / threads | "
+HEADER = ("| topology | devices | all listed by the adapter, from the lab's start | fleet processes: RSS / fds / threads "
+          "| whole lab: RSS, PSS / fds / threads | "
           "idle CPU of one core: sensors publishing / none | /things first page | HTTP read p50 / p99 | "
           "Zenoh read p50 / p99 | "
           f"fan-out to {OBSERVERS} p50 / p99 (deliveries) |\n|" + "---|" * 10)
