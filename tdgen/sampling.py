@@ -117,8 +117,9 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
                 tips = _tip_positions(world, robot, scene, q)
                 collision = _exact(world, robot, scene, q, workers, done)
             elif len(q) <= COLD_EXACT and not compiled():
+                from tdgen.robot import fast_collision
 
-                compile_in_background()  # the fast model's next run loads it
+                compile_in_background(fast_collision)  # the fast model's next run loads it
                 tips = _tip_positions_uncompiled(world, robot, scene, q)
                 collision = _exact(world, robot, scene, q, workers, done)
             else:

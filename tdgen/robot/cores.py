@@ -17,6 +17,7 @@ import os
 import sys
 import threading
 from pathlib import Path
+from types import ModuleType
 
 import platformdirs
 
@@ -114,18 +115,27 @@ LOCK_FD = "TWINMESH_COMPILING_LOCK_FD"  # the lock's descriptor handed to the ba
 BACKGROUND_NICE = 10  # the background compile's niceness: a lab starting beside it comes first
 
 
-COMPILES_ALL = "tdgen.robot.fast_collision"  # the module whose main compiles every kernel (`compile_all`)
+_compiler: list[ModuleType] = []  # the module whose main compiles every kernel: fast_collision, once imported
 
 
-def compile_in_background(module: str = COMPILES_ALL) -> None:
-    """Compile everything (`module`'s main: `fast_collision.compile_all`) in a process of its own, at low
+def compiles_everything(module: ModuleType) -> None:
+    """`module`'s main compiles every kernel (`fast_collision.compile_all`): it says so when it is imported, so
+    that the modules below it (kinematics) start the background compile without importing it."""
+    if not _compiler:
+        _compiler.append(module)
+
+
+def compile_in_background(module: ModuleType | None = None) -> None:
+    """Compile everything (`module`'s main, by default the registered one: `fast_collision.compile_all`;
+    nothing if no module of this process registered) in a process of its own, at low
     priority, at most once per process; it goes on if this process ends (a `twinmesh tdgen` that was
     done first). Nothing starts if another process is at it: the lock is taken here and handed to the
     compiling process, so two processes of a lab starting at once cannot both start one."""
     import fcntl
     import subprocess
 
-    if _started.is_set():
+    module = module or (_compiler[0] if _compiler else None)
+    if module is None or _started.is_set():  # no collision model loaded here: a process that has one starts it
         return
     _started.set()
     folder = compiled_code_dir()
@@ -136,7 +146,7 @@ def compile_in_background(module: str = COMPILES_ALL) -> None:
         except BlockingIOError:
             return
         main = (f"import os, runpy; os.nice({BACKGROUND_NICE}); "
-                f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)")
+                f"runpy.run_module({module.__name__!r}, run_name='__main__', alter_sys=True)")
         subprocess.Popen([sys.executable, "-c", main], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                          stderr=subprocess.DEVNULL, start_new_session=True, pass_fds=(lock.fileno(),),
                          env={**os.environ, LOCK_FD: str(lock.fileno())})

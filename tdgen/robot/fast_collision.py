@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import os
+import sys
 import time
 import weakref
 
@@ -27,6 +28,7 @@ from tdgen.robot.cores import (
     compiled,
     compiled_code_dir,
     compiled_stamp,
+    compiles_everything,
     compiling_here,
 )
 from tdgen.robot.link_frames import LinkFrames
@@ -301,7 +303,7 @@ class FastCollision:
         self.unsure = 0  # configurations left to the exact test so far (a figure for the benchmark)
         self._exact_until = 0.0 if not warm or compiled() else time.monotonic()  # when to look for the code again
         if self._exact_until:
-            compile_in_background()
+            compile_in_background(sys.modules[__name__])
         elif warm:
             self.load()
 
@@ -440,6 +442,9 @@ def compile_all(wait: bool = True) -> None:
         finally:
             world.close()
         compiled_stamp().touch()
+
+
+compiles_everything(sys.modules[__name__])  # kinematics, below us, starts the compile without importing us
 
 
 if __name__ == "__main__":  # `cores.compile_in_background`
