@@ -82,12 +82,15 @@ def test_a_port_in_use_is_named(recording):
 class Replaying:
     """`twinmesh replay` running in the background; `url` is what it printed."""
 
-    def __init__(self, path: Path, tmp: Path):
+    def __init__(self, path: Path, tmp: Path, background: bool = False):
+        """`background`: started as a script's `cmd &` starts it, SIGINT ignored from the start."""
         self.port = free_port()
         self.log = tmp / "replay.log"
+        ignore = (lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if background else None
         self.proc = subprocess.Popen([TWINMESH, "replay", str(path), "--port", str(self.port),
                                       "--grpc-port", str(free_port())],
-                                     stdout=open(self.log, "wb"), stderr=subprocess.STDOUT, cwd=REPO)
+                                     stdout=open(self.log, "wb"), stderr=subprocess.STDOUT, cwd=REPO,
+                                     preexec_fn=ignore)
         line = eventually(lambda: self._said("replaying "), timeout=120, what="the replay's URL")
         self.url = line.split(" at ", 1)[1].split()[0]
 
@@ -97,7 +100,14 @@ class Replaying:
 
     def stop(self) -> int:
         self.proc.send_signal(signal.SIGINT)
-        return self.proc.wait(timeout=30)
+        try:
+            return self.proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:  # where it is stuck, from its threads' stacks, in the failure
+            self.proc.send_signal(signal.SIGUSR1)
+            time.sleep(1.0)  # the dump is written by the process itself: no event to wait on from here
+            self.proc.kill()
+            raise AssertionError("twinmesh replay did not stop within 30 s of Ctrl-C:\n"
+                                 + self.log.read_text(errors="replace")[-6000:]) from None
 
 
 @pytest.fixture
@@ -116,6 +126,15 @@ def test_the_replay_page_is_served_on_loopback_with_a_policy_that_keeps_it_here(
     assert "connect-src 'self' http://*:" in policy and "default-src 'self'" in policy
     assert "fonts.googleapis.com" not in body  # the page's web-font links are taken out
     assert replaying.stop() in (0, -2, 130)
+
+
+def test_ctrl_c_stops_a_replay_that_a_script_started_in_the_background(recording, tmp_path):
+    replaying = Replaying(recording, tmp_path, background=True)
+    try:
+        assert replaying.stop() in (0, -2, 130)
+    finally:
+        if replaying.proc.poll() is None:
+            replaying.proc.kill()
 
 
 @pytest.mark.browser

@@ -1,6 +1,7 @@
 """`twinmesh replay FILE.rrd`: a recording in Rerun's viewer, in a browser (any host) or on the desktop."""
 from __future__ import annotations
 
+import faulthandler
 import signal
 import subprocess
 import sys
@@ -33,7 +34,10 @@ def replay(path: str, port: int, grpc_port: int | None, bind: str, desktop: bool
     except (ReplayError, RepairError) as e:
         raise usage_exit(str(e)) from None
     click.echo(f"replaying {rrd} at {web.url}  (Ctrl-C to stop)")
-    for stop_signal in (signal.SIGTERM, signal.SIGHUP):  # a service manager's stop ends the viewer too, as Ctrl-C
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # `kill -USR1`: where a stop is stuck, on stderr
+    # Ctrl-C, and a service manager's stop, end the viewer; SIGINT too is set here: a process started in the
+    # background by a script inherits SIGINT ignored, and Python then raises no KeyboardInterrupt for it
+    for stop_signal in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(stop_signal, _interrupt)
     try:
         proc.wait()
