@@ -147,6 +147,8 @@ def compile_in_background(module: ModuleType | None = None) -> None:
             return
         main = (f"import os, runpy; os.nice({BACKGROUND_NICE}); "
                 f"runpy.run_module({module.__name__!r}, run_name='__main__', alter_sys=True)")
-        subprocess.Popen([sys.executable, "-c", main], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+        # -P: the working directory does not go first on sys.path, so the compile is of the modules this process
+        # runs (a lab started inside a checkout of twinmesh compiled the checkout's, not the installed ones)
+        subprocess.Popen([sys.executable, "-P", "-c", main], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                          stderr=subprocess.DEVNULL, start_new_session=True, pass_fds=(lock.fileno(),),
                          env={**os.environ, LOCK_FD: str(lock.fileno())})
