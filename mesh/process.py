@@ -32,8 +32,9 @@ class StopEvent(threading.Event):
         return True
 
 
-def install_stop_handlers() -> StopEvent:
-    """A stop event set by SIGINT and SIGTERM (call from the main thread). SIGUSR1 prints where every
+def install_stop_handlers(signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)) -> StopEvent:
+    """A stop event set by `signals`, SIGINT and SIGTERM unless told (call from the main thread); set here
+    also where the process was started with SIGINT ignored (a script's `cmd &`). SIGUSR1 prints where every
     thread of the process is to stderr: for a process that does not stop (`kill -USR1 PID`).
 
     The handler itself only writes a byte to a pipe; a watcher thread sets the event. A handler runs
@@ -55,7 +56,7 @@ def install_stop_handlers() -> StopEvent:
             pass
 
     threading.Thread(target=watch, name="stop-signal", daemon=True).start()
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in signals:
         signal.signal(sig, handle)
     return stop
 

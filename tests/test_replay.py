@@ -104,8 +104,11 @@ class Replaying:
             return self.proc.wait(timeout=30)
         except subprocess.TimeoutExpired:  # where it is stuck, from its threads' stacks, in the failure
             self.proc.send_signal(signal.SIGUSR1)
-            time.sleep(1.0)  # the dump is written by the process itself: no event to wait on from here
-            self.proc.kill()
+            try:
+                eventually(lambda: "Thread 0x" in self.log.read_text(errors="replace"), timeout=10,
+                           what="its threads' stacks in its log")
+            finally:
+                self.proc.kill()
             raise AssertionError("twinmesh replay did not stop within 30 s of Ctrl-C:\n"
                                  + self.log.read_text(errors="replace")[-6000:]) from None
 

@@ -1,10 +1,10 @@
 """`twinmesh replay FILE.rrd`: a recording in Rerun's viewer, in a browser (any host) or on the desktop."""
 from __future__ import annotations
 
-import faulthandler
 import signal
 import subprocess
 import sys
+import threading
 
 import click
 
@@ -22,6 +22,7 @@ def replay(path: str, port: int, grpc_port: int | None, bind: str, desktop: bool
     """Replay a recording (twinmesh record, up --record) in Rerun's viewer: served to a browser, with the
     URL to open printed, until Ctrl-C; or with --desktop in the desktop viewer. Rerun's analytics are off."""
     from mesh.cli.exits import usage_exit
+    from mesh.process import install_stop_handlers
     from mesh.recorder.repair import RepairError
     from mesh.recorder.replay import ReplayError, WebReplay, check_recording, desktop_command, rerun_env, stop_group
 
@@ -34,15 +35,11 @@ def replay(path: str, port: int, grpc_port: int | None, bind: str, desktop: bool
     except (ReplayError, RepairError) as e:
         raise usage_exit(str(e)) from None
     click.echo(f"replaying {rrd} at {web.url}  (Ctrl-C to stop)")
-    faulthandler.register(signal.SIGUSR1, all_threads=True)  # `kill -USR1`: where a stop is stuck, on stderr
-    # Ctrl-C, and a service manager's stop, end the viewer; SIGINT too is set here: a process started in the
-    # background by a script inherits SIGINT ignored, and Python then raises no KeyboardInterrupt for it
-    for stop_signal in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(stop_signal, _interrupt)
+    # Ctrl-C and a service manager's stop (SIGTERM, SIGHUP) end the viewer; SIGUSR1 prints where it is stuck
+    stop = install_stop_handlers((signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
+    threading.Thread(target=_set_when_ended, args=(proc, stop), name="rerun-ended", daemon=True).start()
     try:
-        proc.wait()
-    except KeyboardInterrupt:
-        pass
+        stop.wait()
     finally:
         try:
             stop_group(proc)
@@ -50,5 +47,7 @@ def replay(path: str, port: int, grpc_port: int | None, bind: str, desktop: bool
             viewer.close()
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
+def _set_when_ended(proc: subprocess.Popen, stop: threading.Event) -> None:
+    """A viewer whose server ended by itself stops too."""
+    proc.wait()
+    stop.set()

@@ -6,7 +6,9 @@ Two topologies, measured in the same run:
   peer), shared memory on (`twinmesh --mode peer --shared-memory up fleet`). It is run up to the
   first N where it fails; larger N are not tried.
 
-For each: start-up time until the `ready` line; RSS, descriptors and threads of the fleet
+For each: start-up time until the `ready` line (the idle windows start as soon as all are listed, and as
+soon as the sensors' writes are answered: whatever work is left then counts as idle, an upper bound);
+RSS, descriptors and threads of the fleet
 processes (per process and per device) and of the whole lab; idle CPU of the whole lab over
 10 s (the climate sensors publish every second); `/things?limit=100` latency; readproperty
 p50/p99 to random devices over HTTP and over Zenoh; property-change fan-out to 10 SSE observers.
@@ -277,11 +279,9 @@ def measure(topology: str, n: int, tmp: Path, hosts: int = 1, soak: float = 0.0,
         joined_s = time.monotonic() - joining
         procs = [p for root in roots for p in _lab_processes(psutil.Process(root.pid))]
         at_ready = _by_role(procs)
-        time.sleep(3)
         figures = _figures(procs)
         idle = _idle_cpu(procs)  # the climate sensors publishing every second
-        quieted = _quiet(base, devices)
-        time.sleep(3)
+        quieted = _quiet(base, devices)  # answered: each sensor now waits an hour (a reading already due may come)
         before = _by_role(procs)
         quiet = _idle_cpu(procs)  # no device publishing on its own
         after = _by_role(procs)
