@@ -17,6 +17,11 @@ plus the event `twinChanged {robot, version}` and the files `twin.json` (its
    replaces its TD with the service's (`update_td`: observers of `<prefix>/<robot>/td` see it),
    which links all five files with relative hrefs `files/...` (relations: mesh.messages.relations).
 
+The files the scene's mesh and points bodies name (CAD meshes, scans) are served too, from the start, each
+linked from both TDs (`rel` scene-asset) under the name the served scene.json gives it (relative to
+scene.json; `devices.things.scene_files`), so that a consumer that downloads the scene can rebuild it.
+twin.json keeps the paths on this host (the tdgen service reads them there) and maps each to its name.
+
 Both TDs come from `tdgen.robot_td.robot_td`, the builder `twinmesh tdgen` uses offline.
 
 When the surroundings change (`RobotTwin.set_scene`), twin.json changes, `twinChanged` goes out,
@@ -35,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
+from devices.things.scene_files import SceneAssets
 from mesh.backoff import pause_after
 from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.server import ExposedThing
@@ -109,7 +115,9 @@ class RobotThing:
         self._artefacts: dict[str, bytes] = {}
         self._flags: points_csv.Flags | None = None  # where the served points.csv keeps its collision flags
         self.client = MeshClient(session, settings)
-        self.thing = t = ExposedThing(session, provisional_td(twin), self.name, self.keys)
+        self.scene_assets = SceneAssets(taken=[TWIN_FILE, path.name, *ARTEFACTS])
+        self.scene_assets.add(self._scene_bodies())
+        self.thing = t = ExposedThing(session, self._with_assets(provisional_td(twin)), self.name, self.keys)
         t.on_read("getJointposition", twin.joint_position)
         t.on_read("getCartesianposition", twin.cartesian_position)
         t.on_action("moveToJointPosition", self._move_to_joints)
@@ -121,6 +129,8 @@ class RobotThing:
         t.on_file(path.name, lambda: self._urdf_bytes, URDF_TYPE)
         for name, (_, media) in ARTEFACTS.items():
             t.on_file(name, functools.partial(self._artefact, name), media)
+        for asset in self.scene_assets.assets():
+            t.on_file(asset.name, asset.read, asset.media_type)
         self.publisher = StatePublisher(t, lambda: {"getJointposition": twin.joint_position(),
                                                     "getCartesianposition": twin.cartesian_position()}, rate)
         twin.on_state(self.publisher.changed)
@@ -131,8 +141,24 @@ class RobotThing:
 
     def description(self) -> "TwinDescription":
         """This robot's twin.json, as it stands now."""
-        return self.twin.description(self._urdf, self._urdf_sha, self.twin.robot.urdf_path.name, self.samples,
+        twin = self.twin.description(self._urdf, self._urdf_sha, self.twin.robot.urdf_path.name, self.samples,
                                      self.seed)
+        return msgspec.structs.replace(twin, scene_files=self.scene_assets.names())
+
+    def _scene_bodies(self) -> list[dict[str, Any]]:
+        return msgspec.to_builtins(self.twin.scene.bodies)
+
+    def _with_assets(self, td: ThingDescription) -> ThingDescription:
+        """`td` linking the files of the scene's mesh and points bodies."""
+        links = self.scene_assets.links(self._scene_bodies())
+        return msgspec.structs.replace(td, links=[*td.links, *links]) if links else td
+
+    def _served_scene(self, scene_json: bytes) -> bytes:
+        """The generated scene.json naming its mesh and points files as this Thing serves them (relative to it)."""
+        from tdgen.robot.surroundings import Surroundings, encode_scene
+
+        scene = self.scene_assets.relative(msgspec.json.decode(scene_json))
+        return encode_scene(msgspec.convert(scene, Surroundings))
 
     def __enter__(self) -> "RobotThing":
         ev = self.keys.event
@@ -231,7 +257,8 @@ class RobotThing:
             made = self._points_from_digest(digest.result() if digest is not None else None)
             points = None if made is not None else self._service_file("points.csv")  # made: its bytes when asked for
             workspace, flags = self._workspace_of(points, made)
-            td = generated_td(files["td.json"], self.twin, version)
+            td = self._with_assets(generated_td(files["td.json"], self.twin, version))
+            files["scene.json"] = self._served_scene(files["scene.json"])
         except Problem as e:
             if attempt < ADOPT_RETRIES:
                 delay = pause_after(attempt + 1, *ADOPT_PAUSES_S)

@@ -14,6 +14,7 @@ WORKSPACE = VOCABULARY + "workspace"     # the workspace hull: convex hull of th
 POINTS = VOCABULARY + "dataset-points"   # the sampled configurations: CSV x,y,z,collision,<joints>
 SCENE = VOCABULARY + "scene"             # the surroundings: a robot's generation scene, the world's scene file
 TWIN = VOCABULARY + "twin"               # the twin description (twin.json) the tdgen service generates from
+SCENE_ASSET = VOCABULARY + "scene-asset"  # a file a body of the served scene names: a CAD mesh, a scan
 
 DESCRIPTIONS = {
     MODEL: "the robot's URDF (application/xml); on the world Thing one per robot, `anchor` = the robot's id",
@@ -21,4 +22,7 @@ DESCRIPTIONS = {
     POINTS: "the sampled joint configurations with their tip position and collision state (text/csv)",
     SCENE: "the surroundings: the scene a robot's workspace was generated in, or the world's scene file (JSON)",
     TWIN: "the twin description the tdgen service generates a robot's TD and files from (JSON)",
+    SCENE_ASSET: "a file a mesh or points body of the served scene names (a CAD mesh, a scan), under the name the "
+                 "scene gives it: relative to scene.json (model/stl, model/obj, application/octet-stream for PLY "
+                 "and PCD, ...)",
 }

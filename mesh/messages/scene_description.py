@@ -35,17 +35,22 @@ class RobotModel(msgspec.Struct, omit_defaults=True):
 
 
 class Body(msgspec.Struct, omit_defaults=True):
-    """A body of the scene: static (tables, belts, walls) or moving (cubes), drawn as a primitive."""
+    """A body of the scene: static (tables, belts, walls) or moving (cubes), drawn as a primitive, or a
+    CAD mesh or a scan from a file the world Thing serves beside scene.json."""
 
     name: str
-    shape: Literal["box", "cylinder", "sphere"]
-    size: tuple[float, ...]       # box: full extents (m); cylinder: (radius, length); sphere: (radius,)
+    shape: Literal["box", "cylinder", "sphere", "mesh", "points"]
+    size: tuple[float, ...]       # box: full extents (m); cylinder: (radius, length); sphere: (radius,);
+                                  # mesh, points: the full extents of its bounding box in its own frame (m)
     pose: Pose
     color: tuple[float, float, float] = (0.6, 0.6, 0.6)  # sRGB 0..1
     opacity: float = 1.0          # 0..1; below 1 for virtual bodies (a safety wall) drawn see-through
     moving: bool = False
     shows: str | None = None      # a device of `Poses.states` whose {on, color} this body shows (a lamp's shade):
                                   # drawn in that colour while on, in `color` while off
+    file: str | None = None       # mesh, points: the file, relative to scene.json (served as files/<file>)
+    scale: float = 1.0            # mesh, points: the file's units to metres
+    voxel: float | None = None    # points: the resolution its collision boxes were made with (m)
 
 
 class SceneDescription(msgspec.Struct, omit_defaults=True):
@@ -93,6 +98,8 @@ class TwinDescription(msgspec.Struct, omit_defaults=True, kw_only=True):
     packages: dict[str, str] = {}               # ROS package name -> directory, for package:// meshes
     allowed_collisions: list[tuple[str, str]] = []  # link pairs whose contact is no collision
     scene: dict[str, Any] = {}
+    scene_files: dict[str, str] = {}            # a scene body's `file` (a path on the robot's host) -> the name the
+                                                # robot serves it under (files/<name>, rel scene-asset)
     samples: int = DEFAULT_SAMPLES
     seed: int = 0
     calibration: list[list[float]] | None = None  # rows twin_x,twin_y,twin_z,real_x,real_y,real_z (mm)

@@ -1,0 +1,157 @@
+"""A scene's CAD meshes and scans are reachable from the TD: a consumer that downloads scene.json and the files
+it links over HTTP rebuilds the same scene.
+
+`twinmesh robot --scene FILE` on the shared lights lab, its scene holding a known table, a closed mesh (a ring,
+STL, in a subfolder) and a scan (an organized PCD with NaN points, in another subfolder), at `--speed max` with
+the exact collision model. A client does what any HTTP consumer would: GET the TD through the adapter, GET
+scene.json and every `scene-asset` link into an empty folder, load it with tdgen's scene loader, and asks the
+rebuilt scene about configurations of the robot's own points.csv.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from urllib.parse import urljoin
+
+import httpx
+import numpy as np
+import pytest
+import trimesh
+from scans import render_scan, write_pcd
+from waiting import eventually
+
+from mesh.messages.relations import POINTS, SCENE, SCENE_ASSET, TWIN, WORKSPACE
+from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.model import Robot
+from tdgen.robot.surroundings import Surroundings, load_scene, prepare
+
+pytestmark = pytest.mark.lab
+
+NAME = "scanbot"
+RING = {"type": "mesh", "name": "ring", "file": "cad/ring.stl", "position": [0.55, 0.35, 0.95], "rpy": [90, 0, 0]}
+TABLE = {"type": "box", "name": "table", "size": [0.6, 0.6, 0.6], "position": [0.0, 0.0, 0.3]}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def scan_cache(tmp_path_factory):
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("TWINMESH_CACHE", str(tmp_path_factory.mktemp("cache")))
+        yield
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory) -> Path:
+    """scene.json with a table, the ring (cad/ring.stl) and the room's scan (scans/room.pcd)."""
+    from tdgen.robot.surroundings import BoxBody
+
+    folder = tmp_path_factory.mktemp("scene")
+    (folder / "cad").mkdir()
+    (folder / "scans").mkdir()
+    trimesh.creation.torus(0.25, 0.05).export(folder / "cad" / "ring.stl")
+    room = Surroundings(name="room", bodies=[
+        BoxBody(name="wall", size=(2.0, 0.1, 1.6), position=(0.0, 0.6, 0.8)),
+        BoxBody(name="crate", size=(0.3, 0.3, 0.4), position=(0.55, -0.2, 0.8))])
+    scan = render_scan(room, eye=(1.4, -1.3, 1.5), target=(0.0, 0.2, 0.6), size=(96, 72), seed=3)
+    write_pcd(scan, folder / "scans" / "room.pcd")
+    points = {"type": "points", "name": "room", "file": "scans/room.pcd", "position": list(scan.position),
+              "rpy": list(scan.rpy), "voxel": 0.03}
+    path = folder / "scene.json"
+    path.write_text(json.dumps({"name": "scanned-bench", "robot": {"position": [0, 0, 0.6]},
+                                "bodies": [TABLE, RING, points]}))
+    return path
+
+
+@pytest.fixture(scope="module")
+def robot_td(lights, scene_file) -> dict:
+    lights.spawn("robot", "ur10.urdf", "--scene", str(scene_file), "--name", NAME, "--samples", "1500",
+                 "--collision-model", "exact", "--speed", "max", log=lights.tmp / f"{NAME}.log")
+
+    def generated() -> dict | None:
+        r = httpx.get(f"{lights.http}/{NAME}", timeout=10)
+        if r.status_code != 200:
+            return None
+        td = r.json()
+        return td if any(link.get("rel") == WORKSPACE for link in td.get("links", [])) else None
+
+    try:
+        return eventually(generated, timeout=300, what=f"{NAME}'s generated TD")
+    except AssertionError:
+        print((lights.tmp / f"{NAME}.log").read_text()[-3000:])
+        raise
+
+
+def _links(td: dict, rel: str) -> list[dict]:
+    return [link for link in td["links"] if link.get("rel") == rel]
+
+
+@pytest.fixture(scope="module")
+def downloaded(robot_td, tmp_path_factory) -> Path:
+    """scene.json and every scene-asset link of the TD, fetched through the adapter into an empty folder."""
+    folder = tmp_path_factory.mktemp("downloaded")
+    scene_url = _links(robot_td, SCENE)[0]["href"]
+    with httpx.Client(timeout=60) as http:
+        (folder / "scene.json").write_bytes(http.get(scene_url).raise_for_status().content)
+        for link in _links(robot_td, SCENE_ASSET):
+            (folder / link["href"].rsplit("/", 1)[-1]).write_bytes(http.get(link["href"]).raise_for_status().content)
+    return folder / "scene.json"
+
+
+def test_the_td_links_each_file_the_scene_names_under_the_href_the_scene_gives_it(robot_td):
+    scene_url = _links(robot_td, SCENE)[0]["href"]
+    served = httpx.get(scene_url, timeout=30).json()
+    files = {b["name"]: b["file"] for b in served["bodies"] if "file" in b}
+    assets = {link["href"]: link["type"] for link in _links(robot_td, SCENE_ASSET)}
+    assert set(files) == {"ring", "room"}
+    assert {urljoin(scene_url, f) for f in files.values()} == set(assets)  # relative to scene.json, as linked
+    assert assets[urljoin(scene_url, files["ring"])] == "model/stl"
+    assert assets[urljoin(scene_url, files["room"])] == "application/octet-stream"  # PCD: no registered type
+
+
+def test_the_files_come_as_they_are_with_their_media_type(robot_td, scene_file):
+    originals = {"ring": scene_file.parent / RING["file"], "room": scene_file.parent / "scans" / "room.pcd"}
+    served = httpx.get(_links(robot_td, SCENE)[0]["href"], timeout=30).json()
+    for body in served["bodies"]:
+        if "file" in body:
+            r = httpx.get(urljoin(_links(robot_td, SCENE)[0]["href"], body["file"]), timeout=30)
+            assert r.status_code == 200
+            assert hashlib.sha256(r.content).digest() == hashlib.sha256(originals[body["name"]].read_bytes()).digest()
+            assert r.headers["content-type"] == ("model/stl" if body["type"] == "mesh" else "application/octet-stream")
+
+
+def test_twin_json_keeps_the_paths_here_and_names_what_each_is_served_as(robot_td, scene_file):
+    twin = httpx.get(_links(robot_td, TWIN)[0]["href"], timeout=30).json()
+    ring = str((scene_file.parent / RING["file"]).resolve())
+    assert next(b["file"] for b in twin["scene"]["bodies"] if b["name"] == "ring") == ring
+    served = {link["href"].rsplit("/", 1)[-1] for link in _links(robot_td, SCENE_ASSET)}
+    assert set(twin["scene_files"].values()) == served and ring in twin["scene_files"]
+
+
+def test_the_downloaded_scene_rebuilds_the_same_bodies(downloaded, scene_file):
+    here, there = load_scene(scene_file), load_scene(downloaded)
+    assert [(b.name, type(b).__name__) for b in there.bodies] == [(b.name, type(b).__name__) for b in here.bodies]
+    assert there.robot == here.robot
+    for mine, theirs in zip(here.bodies, there.bodies):
+        if hasattr(mine, "file"):
+            made, remade = prepare(mine), prepare(theirs)
+            assert (made.kind, made.stats) == (remade.kind, remade.stats)
+            assert np.allclose(made.low, remade.low) and np.allclose(made.high, remade.high)
+
+
+def test_the_downloaded_scene_gives_the_robots_own_verdicts(robot_td, downloaded, scene_file):
+    """Configurations of the robot's points.csv (flagged by the exact test in the scene on the robot's host):
+    the rebuilt scene calls them as the original does, and as the points file says."""
+    ur10 = Robot.load("ur10.urdf")
+    rows = np.loadtxt(httpx.get(_links(robot_td, POINTS)[0]["href"], timeout=60).text.splitlines()[1:],
+                      delimiter=",")[:300]
+    qs, flags = np.radians(rows[:, 4:]), rows[:, 3] != 0
+    original, rebuilt = CollisionWorld(ur10, load_scene(scene_file)), CollisionWorld(ur10, load_scene(downloaded))
+    try:
+        here, there = original.colliding(qs), rebuilt.colliding(qs)
+        hits = {pair.rsplit("/ ", 1)[-1] for q in qs[there] for pair in rebuilt.what_collides(q)}
+    finally:
+        original.close()
+        rebuilt.close()
+    assert (here == there).all()
+    assert {"ring", "room"} <= hits  # the mesh and the scan decide some of them
+    assert (there == flags).mean() >= 0.99  # the file's joints are rounded to 0.001 deg: a grazing contact may flip
