@@ -1,11 +1,12 @@
 """A scene's CAD meshes and scans are reachable from the TD: a consumer that downloads scene.json and the files
-it links over HTTP rebuilds the same scene.
+it links over HTTP rebuilds the same scene; the recorder draws them from the same files.
 
 `twinmesh robot --scene FILE` on the shared lights lab, its scene holding a known table, a closed mesh (a ring,
 STL, in a subfolder) and a scan (an organized PCD with NaN points, in another subfolder), at `--speed max` with
 the exact collision model. A client does what any HTTP consumer would: GET the TD through the adapter, GET
 scene.json and every `scene-asset` link into an empty folder, load it with tdgen's scene loader, and asks the
-rebuilt scene about configurations of the robot's own points.csv.
+rebuilt scene about configurations of the robot's own points.csv. Then `twinmesh record` records the robot: its
+scan drawn as points and its ring as a mesh, where the scene puts them.
 """
 from __future__ import annotations
 
@@ -18,12 +19,15 @@ import httpx
 import numpy as np
 import pytest
 import trimesh
+from labs import stop_process
 from scans import render_scan, write_pcd
 from waiting import eventually
 
 from mesh.messages.relations import POINTS, SCENE, SCENE_ASSET, TWIN, WORKSPACE
+from recordings import wait_for_line
 from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.model import Robot
+from tdgen.robot.scan_io import read_cloud
 from tdgen.robot.surroundings import Surroundings, load_scene, prepare
 
 pytestmark = pytest.mark.lab
@@ -155,3 +159,62 @@ def test_the_downloaded_scene_gives_the_robots_own_verdicts(robot_td, downloaded
     assert (here == there).all()
     assert {"ring", "room"} <= hits  # the mesh and the scan decide some of them
     assert (there == flags).mean() >= 0.99  # the file's joints are rounded to 0.001 deg: a grazing contact may flip
+
+
+# --- the recording --------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def recording(lights, robot_td, tmp_path_factory) -> Path:
+    """`twinmesh record` started once the robot serves its generated TD, stopped with Ctrl-C once it has
+    fetched every Thing alive (its ready line)."""
+    folder = tmp_path_factory.mktemp("recording")
+    path, log = folder / "scan.rrd", folder / "recorder.log"
+    recorder = lights.spawn("record", str(path), log=log)
+    wait_for_line(log, "recording to", recorder, timeout=120)
+    assert stop_process(recorder) and recorder.returncode == 0, log.read_text()
+    return path
+
+
+def _latest(path: Path, entity: str, component: str):
+    """The last static value of an entity's component."""
+    from rerun.chunk import RrdReader
+
+    rows = []
+    for chunk in RrdReader(path).stream().filter(content=entity, is_static=True):
+        batch = chunk.to_record_batch()
+        if chunk.entity_path == entity and component in batch.schema.names:
+            rows += zip(batch.column("rerun.controls.RowId").to_pylist(), batch.column(component).to_pylist())
+    assert rows, f"nothing static at {entity} {component}"
+    return sorted(rows, key=lambda r: r[0])[-1][1]
+
+
+def _placed(path: Path, entity: str, local) -> np.ndarray:
+    """Points of an entity's own frame in its parent's (the robot's scene frame)."""
+    from scipy.spatial.transform import Rotation
+
+    t = np.array(_latest(path, entity, "Transform3D:translation")[0])
+    q = _latest(path, entity, "Transform3D:quaternion")[0]
+    return Rotation.from_quat(q).apply(np.asarray(local, dtype=float)) + t
+
+
+def test_the_recording_draws_the_scan_as_its_points_where_the_sensor_saw_them(recording, scene_file):
+    from scipy.spatial.transform import Rotation
+
+    body = next(b for b in json.loads(scene_file.read_text())["bodies"] if b["name"] == "room")
+    entity = f"/robots/{NAME}/scene/room"
+    drawn = _placed(recording, entity, _latest(recording, entity, "Points3D:positions"))
+    truth = Rotation.from_euler("xyz", body["rpy"], degrees=True).apply(
+        read_cloud(scene_file.parent / body["file"])) + body["position"]
+    assert drawn.shape == truth.shape and np.allclose(drawn, truth, atol=1e-4)  # fewer than 100,000: every point
+
+
+def test_the_recording_draws_the_ring_as_its_triangles_where_the_scene_puts_it(recording, scene_file):
+    from scipy.spatial.transform import Rotation
+
+    entity = f"/robots/{NAME}/scene/ring"
+    ring = trimesh.load(scene_file.parent / RING["file"], force="mesh")
+    vertices = np.array(_latest(recording, entity, "Mesh3D:vertex_positions"))
+    assert len(_latest(recording, entity, "Mesh3D:triangle_indices")) == len(ring.faces)
+    drawn = _placed(recording, entity, vertices)
+    truth = Rotation.from_euler("xyz", RING["rpy"], degrees=True).apply(ring.vertices) + RING["position"]
+    assert np.allclose(drawn.min(axis=0), truth.min(axis=0), atol=1e-5)
+    assert np.allclose(drawn.max(axis=0), truth.max(axis=0), atol=1e-5)

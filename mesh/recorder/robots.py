@@ -15,7 +15,9 @@ frame `tf#/robots/<r>` is the robot's scene frame, and its links are the frames 
   in its scene frame (static; drawn again when twin.json or the URDF change), and
   `robots/<r>/model/joints/<j>` each joint's transform over time;
 - `robots/<r>/scene/<b>`: the bodies of its scene (twin.json's `scene`: boxes, cylinders, URDFs found
-  on this machine), static, those a new twin.json drops cleared;
+  on this machine, and from the files the Thing serves (`scene_files`) a scan as points and a CAD mesh
+  as a mesh, `mesh.recorder.scene_assets`), static, placed by the body's pose, those a new twin.json
+  drops cleared;
 - `robots/<r>/joints/<j>`: each joint's value as a time series in rad or m (the Thing reports deg
   and mm, as its TD's `unit`s say), batched like the world's poses; `getJointposition` is not also
   logged as a plain property;
@@ -47,6 +49,7 @@ import rerun as rr
 from mesh.messages import relations
 from mesh.messages.scene_description import MODEL_REL, TWIN_FILE, TWIN_REL, Body, Pose, TwinDescription
 from mesh.recorder.mapping import Entry
+from mesh.recorder.scene_assets import Asset, asset_archetype, read_asset
 from mesh.recorder.scene_drawer import (
     BATCH_AGE,
     BATCH_ROWS,
@@ -58,6 +61,7 @@ from mesh.recorder.scene_drawer import (
     thing_robot_path,
 )
 from mesh.wot import units
+from mesh.wot.problem import Problem
 from mesh.wot.thing_description import ThingDescription
 
 JOINTS_PROPERTY = "getJointposition"
@@ -112,11 +116,13 @@ def joint_units(td: ThingDescription) -> dict[str, tuple[float, str]]:
 
 @dataclass(frozen=True)
 class RobotFiles:
-    """What the recorder fetched from a robot Thing to draw it: its twin.json and URDF text."""
+    """What the recorder fetched from a robot Thing to draw it: its twin.json, URDF text and the files of
+    its scene's mesh and points bodies (by body label; a line saying why where one cannot be drawn)."""
 
     thing: str
     twin: TwinDescription
     urdf: str
+    assets: dict[str, Asset | str] = field(default_factory=dict)
 
 
 @dataclass
@@ -150,9 +156,35 @@ def _tip(call: Any) -> np.ndarray | None:
 
 
 def read_robot(thing: str, td: ThingDescription, get: Callable[[str], bytes]) -> RobotFiles:
-    """A robot Thing's twin.json and URDF, through `get(file name)` (the recorder's fetcher)."""
+    """A robot Thing's twin.json, URDF and scene files, through `get(file name)` (the recorder's fetcher)."""
     twin = msgspec.json.decode(get(link_file(td, TWIN_REL) or TWIN_FILE), type=TwinDescription)
-    return RobotFiles(thing, twin, get(link_file(td, MODEL_REL) or twin.urdf_file).decode())
+    urdf = get(link_file(td, MODEL_REL) or twin.urdf_file).decode()
+    return RobotFiles(thing, twin, urdf, read_scene_assets(twin, get))
+
+
+def body_label(i: int, body: Any) -> str:
+    """A scene body's entity name: its name, else its place in the scene."""
+    return str(body.get("name") or f"body-{i}") if isinstance(body, dict) else f"body-{i}"
+
+
+def read_scene_assets(twin: TwinDescription, get: Callable[[str], bytes]) -> dict[str, Asset | str]:
+    """The files of the twin's mesh and points bodies, fetched by the names its Thing serves them under and
+    read for drawing; for a body that cannot be drawn, why."""
+    assets: dict[str, Asset | str] = {}
+    for i, body in enumerate(twin.scene.get("bodies") or []):
+        if not isinstance(body, dict) or body.get("type") not in ("mesh", "points"):
+            continue
+        label, name = body_label(i, body), twin.scene_files.get(str(body.get("file")))
+        if name is None:
+            assets[label] = f"its Thing serves no file for {body.get('file')}"
+            continue
+        try:
+            assets[label] = read_asset(body["type"], name, get(name), float(body.get("scale", 1.0)))
+        except Problem as e:
+            assets[label] = f"cannot fetch {name}: {e}"
+        except Exception as e:  # each library fails in its own way on a broken file
+            assets[label] = f"cannot read {name}: {type(e).__name__}: {str(e)[:160]}"
+    return assets
 
 
 class WorkspaceFiles:
@@ -338,9 +370,9 @@ class RobotDrawer:
         problems: list[str] = []
         drawn: set[str] = set()
         for i, body in enumerate(t.files.twin.scene.get("bodies") or []):
-            label = str(body.get("name") or f"body-{i}") if isinstance(body, dict) else f"body-{i}"
+            label = body_label(i, body)
             try:
-                self._draw_scene_body(name, label, body)
+                self._draw_scene_body(name, label, body, t.files.assets.get(label))
             except Exception as e:  # one body it cannot draw: said, the rest drawn
                 problems.append(f"robot {name}: scene body {label} not drawn ({e})")
             else:
@@ -350,11 +382,19 @@ class RobotDrawer:
         t.scene = drawn
         return problems
 
-    def _draw_scene_body(self, robot: str, label: str, body: dict) -> None:
-        """A tdgen scene body (box, cylinder or URDF; position m, rpy deg) in the robot's own world."""
+    def _draw_scene_body(self, robot: str, label: str, body: dict, asset: Asset | str | None = None) -> None:
+        """A tdgen scene body (box, cylinder, URDF, or a mesh or points body from its file, `asset`; position m,
+        rpy deg) in the robot's own world."""
         path = thing_robot_path(robot, "scene", label)
         pose = Pose(tuple(body.get("position", (0.0, 0.0, 0.0))), _quaternion(body.get("rpy", (0.0, 0.0, 0.0))))
         kind = body.get("type")
+        if kind in ("mesh", "points"):
+            if not isinstance(asset, Asset):
+                raise ValueError(asset or "its file was not fetched")
+            default = (0.5, 0.6, 0.7, 1.0) if kind == "points" else (0.7, 0.7, 0.7, 1.0)  # tdgen's
+            self.rec.log(path, asset_archetype(asset, tuple(body.get("rgba", default))), static=True)
+            self.rec.log(path, rr.Transform3D(translation=pose.p, quaternion=rr.Quaternion(xyzw=pose.q)), static=True)
+            return
         if kind == "urdf":
             file = scene_urdf(str(body["urdf"]))
             drawn = DrawnRobot.load(label, file.read_text(), path, file.parent,
