@@ -1,12 +1,15 @@
 """A scene's CAD meshes and scans are reachable from the TD: a consumer that downloads scene.json and the files
 it links over HTTP rebuilds the same scene; the recorder draws them from the same files.
 
-`twinmesh robot --scene FILE` on the shared lights lab, its scene holding a known table, a closed mesh (a ring,
+The robot: `twinmesh robot --scene FILE` on the shared lights lab, its scene holding a known table, a closed mesh (a ring,
 STL, in a subfolder) and a scan (an organized PCD with NaN points, in another subfolder), at `--speed max` with
 the exact collision model. A client does what any HTTP consumer would: GET the TD through the adapter, GET
 scene.json and every `scene-asset` link into an empty folder, load it with tdgen's scene loader, and asks the
-rebuilt scene about configurations of the robot's own points.csv. Then `twinmesh record` records the robot: its
-scan drawn as points and its ring as a mesh, where the scene puts them.
+rebuilt scene about configurations of the robot's own points.csv. The world: a `world` Thing served from
+this test process on the same mesh, its scene (the same bodies, the UR10 standing where the robot does) naming
+the same two files, downloaded and rebuilt the same way. Then `twinmesh record` records the robot: its
+scan drawn as points and its ring as a mesh, where the scene puts them, in the robot's own world and in the
+world's.
 """
 from __future__ import annotations
 
@@ -89,16 +92,19 @@ def _links(td: dict, rel: str) -> list[dict]:
     return [link for link in td["links"] if link.get("rel") == rel]
 
 
+def _download(td: dict, folder: Path) -> Path:
+    """scene.json and every scene-asset link of `td`, fetched over HTTP into `folder`."""
+    with httpx.Client(timeout=60) as http:
+        (folder / "scene.json").write_bytes(http.get(_links(td, SCENE)[0]["href"]).raise_for_status().content)
+        for link in _links(td, SCENE_ASSET):
+            (folder / link["href"].rsplit("/", 1)[-1]).write_bytes(http.get(link["href"]).raise_for_status().content)
+    return folder / "scene.json"
+
+
 @pytest.fixture(scope="module")
 def downloaded(robot_td, tmp_path_factory) -> Path:
     """scene.json and every scene-asset link of the TD, fetched through the adapter into an empty folder."""
-    folder = tmp_path_factory.mktemp("downloaded")
-    scene_url = _links(robot_td, SCENE)[0]["href"]
-    with httpx.Client(timeout=60) as http:
-        (folder / "scene.json").write_bytes(http.get(scene_url).raise_for_status().content)
-        for link in _links(robot_td, SCENE_ASSET):
-            (folder / link["href"].rsplit("/", 1)[-1]).write_bytes(http.get(link["href"]).raise_for_status().content)
-    return folder / "scene.json"
+    return _download(robot_td, tmp_path_factory.mktemp("downloaded"))
 
 
 def test_the_td_links_each_file_the_scene_names_under_the_href_the_scene_gives_it(robot_td):
@@ -161,11 +167,87 @@ def test_the_downloaded_scene_gives_the_robots_own_verdicts(robot_td, downloaded
     assert (there == flags).mean() >= 0.99  # the file's joints are rounded to 0.001 deg: a grazing contact may flip
 
 
+# --- the world Thing ------------------------------------------------------------------------------
+class ScannedRoom:
+    """A `SimulatedScene` whose description holds the scene file's table, ring and scan, and the UR10."""
+
+    name = "scanned-room"
+    cube_count = 0
+
+    def __init__(self, world, scene_file: Path):
+        self.world, self.scene_file = world, scene_file
+
+    def robot_urdfs(self) -> dict[str, Path]:
+        return {"ur10": Robot.load("ur10.urdf").urdf_path}
+
+    def describe(self):
+        from scipy.spatial.transform import Rotation
+
+        from mesh.messages.scene_description import Body, Pose, RobotModel, SceneDescription
+
+        def pose(body: dict):
+            q = Rotation.from_euler("xyz", body.get("rpy", [0, 0, 0]), degrees=True).as_quat()
+            return Pose(tuple(body["position"]), tuple(float(v) for v in q))
+
+        bodies = json.loads(self.scene_file.read_text())["bodies"]
+        table, ring, room = bodies
+        folder = self.scene_file.parent
+        return SceneDescription(self.name, robots=[RobotModel("ur10", "ur10.urdf", Pose((0.0, 0.0, 0.6)))], bodies=[
+            Body("table", "box", tuple(table["size"]), pose(table)),
+            Body("ring", "mesh", (0.6, 0.6, 0.1), pose(ring), file=str(folder / ring["file"])),
+            Body("room", "points", (2.0, 2.0, 2.0), pose(room), file=str(folder / room["file"]), voxel=room["voxel"])])
+
+    def reset(self, cubes: int | None = None) -> None:
+        pass
+
+
+@pytest.fixture(scope="module")
+def world_td(lights, scene_file):
+    """The world Thing of `ScannedRoom` on the lab's mesh, its TD as the adapter serves it."""
+    from devices.sim.pybullet_world import World
+    from devices.things.world_thing import WorldThing
+    from mesh.fabric.session import open_session
+    from mesh.fabric.settings import MeshSettings
+
+    world = World(speed=1.0).start()
+    try:
+        with open_session(MeshSettings(connect=(lights.endpoint,))) as session, \
+                WorldThing(session, ScannedRoom(world, scene_file)):
+            yield eventually(lambda: (r := httpx.get(f"{lights.http}/world", timeout=10)).status_code == 200
+                             and r.json(), timeout=120, what="the world's TD through the adapter")
+    finally:
+        world.close()
+
+
+def test_the_worlds_scene_json_names_its_files_as_its_td_links_them(world_td):
+    scene_url = _links(world_td, SCENE)[0]["href"]
+    served = httpx.get(scene_url, timeout=30).json()
+    files = {b["name"]: b["file"] for b in served["bodies"] if "file" in b}
+    assert set(files) == {"ring", "room"}
+    assert {urljoin(scene_url, f): t for f, t in zip(files.values(), ("model/stl", "application/octet-stream"))} \
+        == {link["href"]: link["type"] for link in _links(world_td, SCENE_ASSET)}
+
+
+def test_the_worlds_downloaded_scene_gives_the_same_verdicts(world_td, scene_file, tmp_path):
+    """The world's scene.json read as a tdgen scene for its UR10: the same bodies from the same files."""
+    rebuilt = load_scene(_download(world_td, tmp_path), "ur10")
+    assert [(b.name, type(b).__name__) for b in rebuilt.bodies] == [(b.name, type(b).__name__)
+                                                                   for b in load_scene(scene_file).bodies]
+    ur10 = Robot.load("ur10.urdf")
+    qs = np.random.default_rng(11).uniform(ur10.lows(), ur10.highs(), (200, len(ur10.lows())))
+    original, there = CollisionWorld(ur10, load_scene(scene_file)), CollisionWorld(ur10, rebuilt)
+    try:
+        assert (original.colliding(qs) == there.colliding(qs)).all()
+    finally:
+        original.close()
+        there.close()
+
+
 # --- the recording --------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def recording(lights, robot_td, tmp_path_factory) -> Path:
-    """`twinmesh record` started once the robot serves its generated TD, stopped with Ctrl-C once it has
-    fetched every Thing alive (its ready line)."""
+def recording(lights, robot_td, world_td, tmp_path_factory) -> Path:
+    """`twinmesh record` started once the robot serves its generated TD and the world is up, stopped with Ctrl-C
+    once it has fetched every Thing alive (its ready line)."""
     folder = tmp_path_factory.mktemp("recording")
     path, log = folder / "scan.rrd", folder / "recorder.log"
     recorder = lights.spawn("record", str(path), log=log)
@@ -196,21 +278,21 @@ def _placed(path: Path, entity: str, local) -> np.ndarray:
     return Rotation.from_quat(q).apply(np.asarray(local, dtype=float)) + t
 
 
-def test_the_recording_draws_the_scan_as_its_points_where_the_sensor_saw_them(recording, scene_file):
+@pytest.mark.parametrize("entity", [f"/robots/{NAME}/scene/room", "/world/bodies/room"], ids=["robot", "world"])
+def test_the_recording_draws_the_scan_as_its_points_where_the_sensor_saw_them(recording, scene_file, entity):
     from scipy.spatial.transform import Rotation
 
     body = next(b for b in json.loads(scene_file.read_text())["bodies"] if b["name"] == "room")
-    entity = f"/robots/{NAME}/scene/room"
     drawn = _placed(recording, entity, _latest(recording, entity, "Points3D:positions"))
     truth = Rotation.from_euler("xyz", body["rpy"], degrees=True).apply(
         read_cloud(scene_file.parent / body["file"])) + body["position"]
     assert drawn.shape == truth.shape and np.allclose(drawn, truth, atol=1e-4)  # fewer than 100,000: every point
 
 
-def test_the_recording_draws_the_ring_as_its_triangles_where_the_scene_puts_it(recording, scene_file):
+@pytest.mark.parametrize("entity", [f"/robots/{NAME}/scene/ring", "/world/bodies/ring"], ids=["robot", "world"])
+def test_the_recording_draws_the_ring_as_its_triangles_where_the_scene_puts_it(recording, scene_file, entity):
     from scipy.spatial.transform import Rotation
 
-    entity = f"/robots/{NAME}/scene/ring"
     ring = trimesh.load(scene_file.parent / RING["file"], force="mesh")
     vertices = np.array(_latest(recording, entity, "Mesh3D:vertex_positions"))
     assert len(_latest(recording, entity, "Mesh3D:triangle_indices")) == len(ring.faces)

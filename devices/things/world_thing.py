@@ -19,7 +19,10 @@ and a file `scene.json` (a `SceneDescription`), plus each robot's URDF as a file
   of every device's reach, as a lab assistant would (how a test or a class sets up an empty warehouse);
 - in a scene that takes obstacles (`ObstacleScene`: the iot-lab), `addObstacle` / `removeObstacle`
   change the scene under the robots and the observable `obstacles` lists them; the TD is then
-  re-published with a new `version` (how the recorder knows to reload scene.json).
+  re-published with a new `version` (how the recorder knows to reload scene.json);
+- the files the scene's `mesh` and `points` bodies name (CAD meshes, scans) are served beside scene.json
+  and linked from the TD (`rel` scene-asset); scene.json names each by the name it is served under,
+  relative to scene.json (`devices.things.scene_files`), so a consumer that downloads them rebuilds the scene.
 
 The Thing works for any `SimulatedScene`: it asks the scene for its description, its robots'
 URDFs and its reset, and knows nothing of what is on the tables.
@@ -30,6 +33,7 @@ import functools
 import logging
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Callable, Protocol, runtime_checkable
 
@@ -38,13 +42,14 @@ import msgspec
 from devices.sim.bodies import pose as _pose
 from devices.sim.layouts.obstacles import OBSTACLE_SCHEMA, Obstacle
 from devices.sim.pybullet_world import MAX_SPEED, MIN_SPEED, Snapshot, World
+from devices.things.scene_files import SceneAssets
 from mesh.fabric.keys import Keys
 from mesh.fabric.server import ExposedThing
 from mesh.messages import relations
 from mesh.messages.scene_description import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription
 from mesh.wot import units
-from mesh.wot.problem import BadInput
-from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
+from mesh.wot.problem import BadInput, NotFound
+from mesh.wot.thing_description import Link, ThingDescription, decode_td, thing_id
 from tdgen.robot_td import URDF_TYPE
 
 log = logging.getLogger(__name__)
@@ -86,7 +91,8 @@ class ObstacleScene(Protocol):
     def remove_obstacle(self, name: str) -> Obstacle: ...
 
 
-def world_td(scene: SimulatedScene, version: int = 0) -> ThingDescription:
+def world_td(scene: SimulatedScene, version: int = 0, assets: Sequence[Link] = ()) -> ThingDescription:
+    """`assets`: the links to the files of the scene's mesh and points bodies."""
     n = scene.cube_count
     takes_obstacles = isinstance(scene, ObstacleScene)
     td: dict[str, Any] = {
@@ -135,7 +141,8 @@ def world_td(scene: SimulatedScene, version: int = 0) -> ThingDescription:
         },
         "links": [{"rel": relations.SCENE, "href": f"files/{SCENE_FILE}", "type": "application/json"}]
         + [{"rel": relations.MODEL, "href": f"files/{urdf_file(robot)}", "type": URDF_TYPE, "anchor": thing_id(robot)}
-           for robot in scene.robot_urdfs()],
+           for robot in scene.robot_urdfs()]
+        + [msgspec.to_builtins(link) for link in assets],
     }
     if takes_obstacles:
         td["properties"]["obstacles"] = {
@@ -250,8 +257,10 @@ class WorldThing:
     def __init__(self, session, scene: SimulatedScene, keys: Keys | None = None, rate: float = POSES_RATE):
         self.scene, self.world = scene, scene.world
         self.version = 0
-        self.thing = ExposedThing(session, world_td(scene), WORLD_THING, keys)
-        self._scene_json = self._describe()
+        self._urdfs = {urdf_file(robot): path for robot, path in scene.robot_urdfs().items()}
+        self.assets = SceneAssets(taken=[SCENE_FILE, *self._urdfs])
+        self._scene_json, links = self._describe()
+        self.thing = ExposedThing(session, world_td(scene, 0, links), WORLD_THING, keys)
         t = self.thing
         t.on_read(POSES_PROPERTY, lambda: to_poses(self.world.snapshot()))
         t.on_read("simTime", lambda: self.world.time)
@@ -259,9 +268,8 @@ class WorldThing:
         t.on_read("stepping", lambda: self.world.stepping)
         t.on_action("reset", lambda _: self.reset())
         t.on_action("resetWarehouse", lambda v: self.reset(v["cubes"]))
-        t.on_file(SCENE_FILE, lambda: self._scene_json, "application/json")
-        for robot, path in scene.robot_urdfs().items():
-            t.on_file(urdf_file(robot), functools.partial(bytes, path.read_bytes()), URDF_TYPE)
+        urdfs = {name: path.read_bytes() for name, path in self._urdfs.items()}
+        t.on_any_file(functools.partial(self._file, urdfs))  # a scene change may bring files
         self._obstacles: ObstacleScene | None = scene if isinstance(scene, ObstacleScene) else None
         if isinstance(scene, ObstacleScene):
             t.on_read("obstacles", scene.obstacles)
@@ -286,8 +294,27 @@ class WorldThing:
         self._throttle.close()
         self.thing.destroy()
 
-    def _describe(self) -> bytes:
-        return msgspec.json.encode(self.world.run(self.scene.describe))
+    def _describe(self) -> tuple[bytes, list[Link]]:
+        """scene.json, its mesh and points bodies naming their files as served, and the TD's links to those."""
+        description = self.world.run(self.scene.describe)
+        files = [{"type": b.shape, "file": b.file} for b in description.bodies if b.file]
+        self.assets.add(files)
+        names = self.assets.names()
+        bodies = [msgspec.structs.replace(b, file=names[b.file]) if b.file in names else b
+                  for b in description.bodies]
+        served = msgspec.structs.replace(description, bodies=bodies)
+        return msgspec.json.encode(served), self.assets.links(files)
+
+    def _file(self, urdfs: dict[str, bytes], name: str) -> tuple[bytes, str]:
+        """files/<name>: scene.json, a robot's URDF or a file of the scene (read when asked, never kept)."""
+        if name == SCENE_FILE:
+            return self._scene_json, "application/json"
+        if name in urdfs:
+            return urdfs[name], URDF_TYPE
+        asset = next((a for a in self.assets.assets() if a.name == name), None)
+        if asset is None:
+            raise NotFound(f"{WORLD_THING} has no file {name!r}")
+        return asset.read(), asset.media_type
 
     def _fill(self, snap: Snapshot) -> None:  # stepping thread: a snapshot source
         snap.states[WORLD_THING] = {"idle": self.world.idle(), "speed": self.world.speed or 0.0}
@@ -333,8 +360,8 @@ class WorldThing:
 
     def _scene_changed(self) -> None:
         """New scene.json, the TD re-published with a new version (the recorder redraws), obstacles out."""
-        self._scene_json = self._describe()
+        self._scene_json, links = self._describe()
         self.version += 1
-        self.thing.update_td(world_td(self.scene, self.version))
+        self.thing.update_td(world_td(self.scene, self.version, links))
         self.thing.emit_property_change("obstacles", self._obstacle_scene().obstacles())
         self._snapshot(self.world.snapshot(), now=True)

@@ -36,7 +36,7 @@ from mesh.fabric.directory import Directory
 from mesh.fabric.keys import Keys
 from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.settings import MeshSettings
-from mesh.messages.scene_description import POSES_PROPERTY, SCENE_FILE, WORLD_THING, Poses, SceneDescription, TwinDescription
+from mesh.messages.scene_description import POSES_PROPERTY, WORLD_THING, Poses, TwinDescription
 from mesh.recorder import mapping
 from mesh.recorder.robots import (
     JOINTS_PROPERTY,
@@ -47,7 +47,7 @@ from mesh.recorder.robots import (
     is_robot,
     read_robot,
 )
-from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles, lab_blueprint
+from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles, lab_blueprint, read_scene
 from mesh.wot.problem import BadInput, Problem
 from mesh.wot.thing_description import ThingDescription, decode_td
 from mesh.wot.validate import validate
@@ -299,17 +299,14 @@ class _Fetcher(threading.Thread):
             self.put(Message("workspace", thing, workspace, time.time()))
 
     def fetch_scene(self, thing: str) -> None:
-        """The world's `scene.json` and the URDF of each of its robots, queued as one "scene" message."""
+        """The world's `scene.json`, the URDF of each of its robots and its bodies' files, queued as one "scene"
+        message."""
         try:
-            scene = msgspec.json.decode(self.client.file(thing, SCENE_FILE).payload, type=SceneDescription)
-            urdfs = {}
-            for robot in scene.robots:
-                if robot.urdf not in urdfs:
-                    urdfs[robot.urdf] = self.client.file(thing, robot.urdf).payload.decode()
+            files = read_scene(lambda name: self.client.file(thing, name).payload)
         except (Problem, msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError) as e:
             self.put(Message("notice", "", f"no scene from {thing}: {e}", time.time()))
             return
-        self.put(Message("scene", thing, msgspec.json.encode(SceneFiles(scene, urdfs)), time.time()))
+        self.put(Message("scene", thing, msgspec.json.encode(files), time.time()))
 
     def forget(self, thing: str) -> None:
         with self._cond:

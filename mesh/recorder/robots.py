@@ -182,8 +182,8 @@ def read_scene_assets(twin: TwinDescription, get: Callable[[str], bytes]) -> dic
             assets[label] = read_asset(body["type"], name, get(name), float(body.get("scale", 1.0)))
         except Problem as e:
             assets[label] = f"cannot fetch {name}: {e}"
-        except Exception as e:  # each library fails in its own way on a broken file
-            assets[label] = f"cannot read {name}: {type(e).__name__}: {str(e)[:160]}"
+        except ValueError as e:
+            assets[label] = str(e)
     return assets
 
 

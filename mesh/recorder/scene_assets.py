@@ -47,6 +47,15 @@ class Asset:
 def read_asset(kind: str, name: str, data: bytes, scale: float = 1.0, max_points: int = MAX_POINTS) -> Asset:
     """The file `name` (its suffix says the format) of a `kind` body ("mesh" or "points"), read for
     drawing; ValueError naming what is wrong."""
+    try:
+        return _read(kind, name, data, scale, max_points)
+    except ValueError:
+        raise
+    except Exception as e:  # each library fails in its own way on a broken file
+        raise ValueError(f"{name}: cannot read it ({type(e).__name__}: {str(e)[:160]})") from None
+
+
+def _read(kind: str, name: str, data: bytes, scale: float, max_points: int) -> Asset:
     suffix = PurePosixPath(name).suffix.lower()
     h = hashlib.sha256(data)
     h.update(f"|{kind}|{scale!r}".encode())

@@ -20,7 +20,9 @@ Entities (frames: `tf#/world` is the scene frame; robot `r`'s links are the fram
 - `world/robots/<r>/joints/<j>`: each moving joint's transform over time, computed from the URDF;
 - `world/joints/<r>/<j>`: each joint's value as a time series (rad or m), one entity per joint;
 - `world/bodies/<b>`: each body as a box, cylinder or sphere with its colour (static) and its pose
-  (static, or over time for moving bodies such as cubes); a body that shows a device's light (a
+  (static, or over time for moving bodies such as cubes), a `points` body (a scan) as its points and a
+  `mesh` body (a CAD mesh) as its triangles, from the file the world serves (`mesh.recorder.scene_assets`),
+  placed by the body's pose (a scan's: its sensor's); a body that shows a device's light (a
   lamp's shade, `Body.shows`) has its colour over time instead, from that device's `{on, color}`
   state in the poses, logged the moment the state changes;
 - `world/states/<device>/<key>`: each device's small state by the property rules of
@@ -45,9 +47,10 @@ import numpy as np
 import rerun as rr
 from rerun.urdf import UrdfJoint, UrdfTree
 
-from mesh.messages.scene_description import Body, Pose, Poses, RobotModel, SceneDescription
+from mesh.messages.scene_description import SCENE_FILE, Body, Pose, Poses, RobotModel, SceneDescription
 from mesh.recorder import mapping
 from mesh.recorder.mapping import Entry, entity_path
+from mesh.recorder.scene_assets import Asset, asset_archetype, read_asset
 from mesh.urdf_resources import with_absolute_meshes
 
 WORLD = "world"
@@ -60,10 +63,32 @@ _MISSING = object()
 
 
 class SceneFiles(msgspec.Struct):
-    """What the recorder fetched from the world Thing: its scene and the URDF text of each robot file."""
+    """What the recorder fetched from the world Thing: its scene, the URDF text of each robot file and the
+    files its mesh and points bodies name (by name, as served)."""
 
     scene: SceneDescription
     urdfs: dict[str, str] = {}
+    assets: dict[str, bytes] = {}
+
+
+def read_scene(get) -> SceneFiles:
+    """The world's scene.json, its robots' URDFs and its bodies' files, through `get(file name) -> bytes`;
+    a body file that cannot be fetched is left out (the drawer says so)."""
+    from mesh.wot.problem import Problem
+
+    scene = msgspec.json.decode(get(SCENE_FILE), type=SceneDescription)
+    urdfs: dict[str, str] = {}
+    for robot in scene.robots:
+        if robot.urdf not in urdfs:
+            urdfs[robot.urdf] = get(robot.urdf).decode()
+    assets: dict[str, bytes] = {}
+    for body in scene.bodies:
+        if body.file and body.shape in ("mesh", "points") and body.file not in assets:
+            try:
+                assets[body.file] = get(body.file)
+            except Problem:
+                continue
+    return SceneFiles(scene, urdfs, assets)
 
 
 # --- entity paths --------------------------------------------------------------------------------
@@ -198,6 +223,7 @@ class SceneDrawer:
         self.bodies: dict[str, Body] = {}
         self.sim_time: float | None = None  # the latest simulated time seen
         self._scene: SceneFiles | None = None
+        self._assets: dict[tuple, Asset] = {}  # read files, by what they were read from: a redraw reads none again
         self._static_bodies: set[str] = set()  # drawn static (the first scene): cleared static too
         self._joints: dict[tuple[str, str], SampleBatch] = {}
         self._poses: dict[str, SampleBatch] = {}  # body name or robot name (its base) -> poses
@@ -224,13 +250,28 @@ class SceneDrawer:
             except Exception as e:  # one bad URDF must not hide the rest of the scene
                 problems.append(f"cannot draw robot {model.name} from {model.urdf}: {e}")
         for body in files.scene.bodies:
-            self._draw_body(body, wall, seq, static=first or body.name in self._static_bodies)
+            try:
+                self._draw_body(body, wall, seq, static=first or body.name in self._static_bodies)
+            except ValueError as e:  # a file that cannot be drawn: said, the rest of the scene drawn
+                problems.append(f"cannot draw body {body.name}: {e}")
         for gone in old_robots - set(self.robots):
             self.rec.log(robot_path(gone), rr.Clear(recursive=True), static=True)
         for gone in old_bodies - set(self.bodies):  # an obstacle removed: gone from then on, not before
             self.rec.log(body_path(gone), rr.Clear(recursive=True), static=gone in self._static_bodies)
             self._static_bodies.discard(gone)
         return problems
+
+    def _asset_shape(self, body: Body) -> rr.Points3D | rr.Mesh3D:
+        """A mesh or points body from its file, in its colour."""
+        assert self._scene is not None
+        data = self._scene.assets.get(body.file or "")
+        if data is None:
+            raise ValueError(f"the world did not serve its file {body.file}")
+        key = (body.shape, body.file, body.scale, len(data), hash(data))
+        asset = self._assets.get(key)
+        if asset is None:
+            asset = self._assets[key] = read_asset(body.shape, body.file or "", data, body.scale)
+        return asset_archetype(asset, (*body.color, body.opacity))
 
     @property
     def scene(self) -> SceneDescription | None:
@@ -247,7 +288,9 @@ class SceneDrawer:
         """A body of the first scene is static; one added later (an obstacle) exists from the time it was
         drawn on, so that scrolling back shows the lab without it."""
         path = body_path(body.name)
-        self.rec.log(path, body_shape(body, with_colour=body.shows is None), static=static)
+        shape = self._asset_shape(body) if body.shape in ("mesh", "points") else \
+            body_shape(body, with_colour=body.shows is None)
+        self.rec.log(path, shape, static=static)
         if body.shows is not None:  # its colour over time, from the device's state (a static one would shadow it)
             self._shown.pop(body.name, None)
             entry = self._shown_colour(body)
@@ -306,7 +349,8 @@ class SceneDrawer:
         if self._shown.get(body.name) == colour:
             return None
         self._shown[body.name] = colour
-        return Entry(body_path(body.name), _ARCHETYPES[body.shape].from_fields(colors=[colour]))
+        archetype = _ARCHETYPES.get(body.shape)
+        return Entry(body_path(body.name), archetype.from_fields(colors=[colour])) if archetype is not None else None
 
     def _batch_pose(self, name: str, pose: Pose, wall: float, seq: int) -> None:
         self._body_poses[name] = pose

@@ -228,7 +228,13 @@ def from_world_scene(description: SceneDescription, robot: str | None, source: s
             continue
         rpy = tuple(float(a) for a in Rotation.from_quat(b.pose.q).as_euler("xyz", degrees=True))
         common = {"name": b.name, "position": tuple(b.pose.p), "rpy": rpy, "rgba": (*b.color, b.opacity)}
-        if b.shape == "cylinder":
+        if b.shape in ("mesh", "points"):  # its file, as the world serves it: beside the scene file
+            file = str((Path(source).parent / (b.file or "")).resolve())
+            extra = {"voxel": b.voxel} if b.shape == "points" and b.voxel else {}
+            made = (MeshBody if b.shape == "mesh" else PointsBody)(file=file, scale=b.scale, **extra, **common)  # type: ignore[arg-type]
+            prepare(made)  # read now: a bad file stops the scene here
+            bodies.append(made)
+        elif b.shape == "cylinder":
             bodies.append(CylinderBody(radius=b.size[0], length=b.size[1], **common))  # type: ignore[arg-type]
         else:  # boxes, and a sphere as the box around it
             size = tuple(b.size) if b.shape == "box" else (2 * b.size[0],) * 3
