@@ -47,7 +47,7 @@ from mesh.recorder.robots import (
     is_robot,
     read_robot,
 )
-from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles, lab_blueprint, read_scene
+from mesh.recorder.scene_drawer import BATCH_AGE, SceneDrawer, SceneFiles, lab_blueprint, read_scene
 from mesh.wot.problem import BadInput, Problem
 from mesh.wot.thing_description import ThingDescription, decode_td
 from mesh.wot.validate import validate
@@ -96,13 +96,15 @@ def prepare_path(path: str | Path | None) -> Path:
 class Recorder:
     """Records the mesh of `session` into `rec` (a RecordingStream the writer thread then owns)."""
 
-    def __init__(self, session, settings: MeshSettings, rec):
+    def __init__(self, session, settings: MeshSettings, rec, batch_age: float = BATCH_AGE):
+        """`batch_age`: how long joint values and poses wait to be written together (one chunk per entity
+        each time): the live view waits longer than a file, so that a browser has fewer chunks to take in."""
         self.keys: Keys = settings.keys
         self.client = MeshClient(session, settings)
         self.session = session
         self.inbox: queue.Queue[Message] = queue.Queue(QUEUE_LIMIT)
         self.dropped = 0
-        self.writer = _Writer(rec, self.keys, self.inbox)
+        self.writer = _Writer(rec, self.keys, self.inbox, batch_age)
         self.fetcher = _Fetcher(self.client, self._queue)
         self._sub = None
         self._directory: Directory | None = None
@@ -325,7 +327,7 @@ class _Fetcher(threading.Thread):
 class _Writer(threading.Thread):
     """The one thread that touches the RecordingStream."""
 
-    def __init__(self, rec, keys: Keys, inbox: queue.Queue):
+    def __init__(self, rec, keys: Keys, inbox: queue.Queue, batch_age: float = BATCH_AGE):
         super().__init__(name="recorder-writer", daemon=True)
         self.rec = rec
         self.keys = keys
@@ -333,8 +335,8 @@ class _Writer(threading.Thread):
         self.tds: dict[str, ThingDescription] = {}
         self.dropped: dict[str, int] = {}  # publications not recorded (not allowed by their TD), per affordance
         self.seq = 0
-        self.scene = SceneDrawer(rec)
-        self.robots = RobotDrawer(rec, self.scene)
+        self.scene = SceneDrawer(rec, batch_age=batch_age)
+        self.robots = RobotDrawer(rec, self.scene, batch_age=batch_age)
         self._poses_key = keys.property(WORLD_THING, POSES_PROPERTY)
         self._joints_suffix = f"/properties/{JOINTS_PROPERTY}"
         self._styled: set[str] = set()  # entity paths whose static style is logged

@@ -58,6 +58,7 @@ ROBOTS = "robots"  # robot Things (mesh.recorder.robots)
 SCENE_FRAME = "tf#/world"  # the implicit frame of the `world` entity
 BATCH_ROWS = 200  # samples held before they are written...
 BATCH_AGE = 0.25  # ...or seconds since the oldest one; a killed recorder loses about this much more
+PLOT_WINDOW = 60.0  # s of simulated (or wall) time each plot shows before the time cursor
 _FILLED = ("Boxes3D", "Cylinders3D", "Ellipsoids3D")  # URDF primitives, drawn solid not wireframe
 _MISSING = object()
 
@@ -419,7 +420,9 @@ def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing
                   own_worlds: dict[str, Pose] | None = None):
     """How a recording of a lab opens: the lab in 3D, each robot simulated apart in its own 3D tab, joint
     plots per robot, states, the log, the time cursor following the latest data. The live view sends the
-    same blueprint, so a replay looks the same.
+    same blueprint, so a replay looks the same. Each plot shows the last `PLOT_WINDOW` seconds before the
+    time cursor (zoom out to see more): a plot of everything costs the viewer more each frame the longer
+    the lab runs, until a browser drawing slowly falls behind the live stream.
 
     `thing_robots` are the robot Things of the lab's world (name -> base pose): their workspaces are
     hidden in the lab view (one eye toggle per robot in the blueprint panel: `robots/<r>/workspace`)
@@ -448,13 +451,15 @@ def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing
         spatial.append(rrb.Spatial3DView(origin="/" + thing_robot_path(r), name=f"{r} (own world)",
                                          contents=[f"+ /{thing_robot_path(r)}/**"], eye_controls=_eye([base.p], 2.5)))
     main = spatial[0] if len(spatial) == 1 else rrb.Tabs(*spatial)
-    joints = [rrb.TimeSeriesView(origin="/" + entity_path(WORLD, "joints", r), name=f"{r} joints")
+    recent = [rrb.VisibleTimeRange(timeline, start=rrb.TimeRangeBoundary.cursor_relative(seconds=-PLOT_WINDOW),
+                                   end=rrb.TimeRangeBoundary.cursor_relative()) for timeline in ("sim_time", "time")]
+    joints = [rrb.TimeSeriesView(origin="/" + entity_path(WORLD, "joints", r), name=f"{r} joints", time_ranges=recent)
               for r in world_robots]
-    joints += [rrb.TimeSeriesView(origin="/" + thing_robot_path(r, "joints"),
+    joints += [rrb.TimeSeriesView(origin="/" + thing_robot_path(r, "joints"), time_ranges=recent,
                                   name=f"{r} joints" + (" (Thing)" if r in world_robots else ""))
                for r in [*thing_robots, *own]]
-    values = rrb.Tabs(rrb.TimeSeriesView(origin=f"/{WORLD}/states", name="device states"),
-                      rrb.TimeSeriesView(origin="/things", name="properties"))
+    values = rrb.Tabs(rrb.TimeSeriesView(origin=f"/{WORLD}/states", name="device states", time_ranges=recent),
+                      rrb.TimeSeriesView(origin="/things", name="properties", time_ranges=recent))
     log = rrb.TextLogView(origin="/", name="log")
     side = rrb.Vertical(rrb.Tabs(*joints), values, log) if joints else rrb.Vertical(values, log)
     return rrb.Blueprint(rrb.Horizontal(main, side, column_shares=[3, 2]),

@@ -27,6 +27,11 @@ from mesh.fabric.settings import MeshSettings
 
 MEMORY = "4MiB"  # the newest part of the stream the gRPC server keeps for a late viewer (static data besides)
 REFRESH = 1 << 20  # bytes: an entity with this much logged behind it is logged again (a quarter of MEMORY)
+# Rerun's web viewer takes in new chunks for about 10 ms per frame it draws, and a chunk costs it about the
+# same whatever its rows: a browser that draws a frame slowly (software WebGL, a busy machine) falls behind
+# a stream of many small chunks and never catches up. So the live stream batches longer than a file: joint
+# values and poses, and what `log` gathers per entity, go out every BATCH seconds, one chunk per entity.
+BATCH = 0.5  # s; a change is in the stream within this
 
 
 def view_url(address: tuple[str, int], grpc_port: int) -> str:
@@ -41,23 +46,27 @@ def grpc_url(host: str, grpc_port: int) -> str:
 
 
 def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] = ("127.0.0.1", 9090),
-        grpc_port: int = 9876, memory: str = MEMORY, refresh: int | None = REFRESH) -> None:
-    """Process entry: serve the lab to a web viewer at `address` until `stop` is set. `memory` and
-    `refresh` (None: the current state is not logged again) are there for the benchmark's baseline."""
+        grpc_port: int = 9876, memory: str = MEMORY, refresh: int | None = REFRESH,
+        batch: float | None = BATCH) -> None:
+    """Process entry: serve the lab to a web viewer at `address` until `stop` is set. `memory`, `refresh`
+    (None: the current state is not logged again) and `batch` (None: as a recording file batches) are there for
+    the benchmark's baseline."""
     import rerun as rr
 
     from mesh.fabric.session import open_session
     from mesh.recorder.live_state import LiveState
     from mesh.recorder.logger import Recorder
+    from mesh.recorder.scene_drawer import BATCH_AGE
     from mesh.recorder.web_viewer import ViewerServer
 
-    stream = rr.RecordingStream("twinmesh")
+    batcher = None if batch is None else rr.ChunkBatcherConfig(flush_tick=batch)
+    stream = rr.RecordingStream("twinmesh", batcher_config=batcher)
     stream.set_sinks(rr.GrpcServerSink(bind_ip=address[0], port=grpc_port, server_memory_limit=memory,
                                        newest_first=True))
     rec = stream if refresh is None else LiveState(stream, refresh)
     viewer = ViewerServer(address, grpc_port)
     rec.send_recording_name(f"twinmesh {settings.prefix} live {time.strftime('%Y-%m-%d %H:%M:%S')}")
-    with open_session(settings, service=True) as session, Recorder(session, settings, rec) as recorder:
+    with open_session(settings, service=True) as session, Recorder(session, settings, rec, batch or BATCH_AGE) as recorder:
         alive = recorder.start()
         print(f"3D view at {view_url(address, grpc_port)} ({len(alive)} things alive)", file=sys.stderr, flush=True)
         stop.wait()
