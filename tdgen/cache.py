@@ -2,7 +2,9 @@
 
 A cache entry `cache_dir/<key>/` (td.json, points.csv, workspace.stl, scene.json, twin.json) is used
 only when its key matches: the twin's inputs (URDF content, base, scene, samples, seed, end effector,
-calibration, frame, name...), the content of every mesh file the URDF names, and the code that
+calibration, frame, name...), the content of every mesh file the URDF names and of every file the
+scene's bodies name (a scan, a CAD mesh, a URDF: the same path with new content is a new key, a file
+only touched is not), and the code that
 makes workspaces and TDs (every module of `tdgen`, the parts of `mesh` it builds TDs with) with the
 versions of the libraries it computes with. Nothing is bumped by hand: an edit to the TD-building
 code, or a new pybullet, is a new key, so a stale TD is never served.
@@ -27,6 +29,7 @@ import mesh.wot
 from mesh.messages.scene_description import TwinDescription
 from mesh.urdf_resources import MESH_FILENAME, resolve_uri
 from tdgen.robot.cores import user_cache
+from tdgen.robot.surroundings import PYBULLET_DATA
 
 DONE = "done"  # written last: an entry without it is not one
 # what a workspace's numbers come from, besides our code
@@ -74,6 +77,34 @@ def meshes_fingerprint(urdf: Path, packages: dict[str, str]) -> str:
     return h.hexdigest()[:16]
 
 
+def scene_files_fingerprint(scene: dict) -> str | None:
+    """A hash of the content of every file the scene's bodies name (a `points` or `mesh` body's `file`, a
+    `urdf` body's URDF; missing ones by name), None for a scene that names none: a room scanned again into
+    the same file changes every flag, and its path says nothing of that. Paths relative to the working
+    directory, as the scene is built (`tdgen.artefacts.scene_of`)."""
+    named = [name for body in scene.get("bodies", []) if isinstance(body, dict)
+             for name in (_named_file(body),) if name is not None]
+    if not named:
+        return None
+    h = hashlib.sha256()
+    for name in named:
+        h.update(name.encode() + b"\0")
+        path = Path(name).expanduser()
+        if path.is_file():
+            with path.open("rb") as f:
+                h.update(hashlib.file_digest(f, "sha256").digest())
+        else:
+            h.update(b"<missing>")
+    return h.hexdigest()[:16]
+
+
+def _named_file(body: dict) -> str | None:
+    """The file a scene body is made from, if it is one on this machine."""
+    kind = body.get("type")
+    name = body.get("file") if kind in ("mesh", "points") else body.get("urdf") if kind == "urdf" else None
+    return name if isinstance(name, str) and not name.startswith(PYBULLET_DATA) else None
+
+
 def twin_inputs(twin: TwinDescription) -> dict:
     """What of a twin shapes its artefacts (not its version number: a scene back to an earlier state is
     the earlier entry)."""
@@ -84,9 +115,11 @@ def twin_inputs(twin: TwinDescription) -> dict:
 
 
 def cache_key(twin: TwinDescription, urdf: Path | None = None) -> str:
-    """The key of `twin`'s artefacts: its inputs, its URDF's meshes (when the URDF is here) and the code."""
+    """The key of `twin`'s artefacts: its inputs, its URDF's meshes (when the URDF is here), the files its
+    scene's bodies name and the code."""
     inputs = {**twin_inputs(twin), "code": code_fingerprint(),
-              "meshes": meshes_fingerprint(urdf, twin.packages) if urdf is not None else None}
+              "meshes": meshes_fingerprint(urdf, twin.packages) if urdf is not None else None,
+              "scene_files": scene_files_fingerprint(twin.scene)}
     return hashlib.sha256(msgspec.json.encode(inputs, order="sorted")).hexdigest()[:32]
 
 

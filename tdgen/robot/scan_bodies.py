@@ -54,7 +54,7 @@ def cache_dir() -> Path:
     return (Path(root).expanduser() if root else Path.home() / ".cache" / "twinmesh") / "scans"
 
 
-_MEMORY: dict[tuple, Prepared] = {}
+_MEMORY: dict[str, Prepared] = {}  # by cache key: the file's content and the parameters
 
 
 def prepare_points(path: Path, voxel: float = DEFAULT_VOXEL, scale: float = 1.0,
@@ -77,14 +77,16 @@ def prepare_mesh(path: Path, scale: float = 1.0) -> Prepared:
 
 
 def _prepared(path: Path, params: tuple, make) -> Prepared:
-    """`make()` once per file content and `params`: from memory, from the cache dir, or made and kept."""
+    """`make()` once per file content and `params`: from memory, from the cache dir, or made and kept.
+    Known by content, never by a file's time: a scan written again within the clock's tick is new."""
     start = time.perf_counter()
-    stat = path.stat() if path.is_file() else None
-    quick = (str(path), stat.st_mtime_ns if stat else 0, stat.st_size if stat else 0, params)
-    if quick in _MEMORY:
-        return _MEMORY[quick]
-    digest = hashlib.sha256(path.read_bytes()).hexdigest() if stat else ""
+    digest = ""
+    if path.is_file():
+        with path.open("rb") as f:
+            digest = hashlib.file_digest(f, "sha256").hexdigest()
     key = hashlib.sha256(repr((FORMAT, digest, params)).encode()).hexdigest()[:32]
+    if digest and key in _MEMORY:
+        return _MEMORY[key]
     entry = cache_dir() / f"{key}.npz"
     prepared = _load(entry) if digest else None
     if prepared is None:
@@ -94,7 +96,7 @@ def _prepared(path: Path, params: tuple, make) -> Prepared:
     else:
         prepared.cached = True
     prepared.seconds = time.perf_counter() - start
-    _MEMORY[quick] = prepared
+    _MEMORY[key] = prepared
     return prepared
 
 
