@@ -76,6 +76,17 @@ def render_scan(scene: Surroundings, eye, target, size=(160, 120), fov=70.0, noi
     return Scan(points, tuple(float(p) for p in cam_to_world[:3, 3]), rpy)  # type: ignore[arg-type]
 
 
+def thinned(scan: Scan, count: int, seed: int = 0) -> Scan:
+    """The scan with returns dropped at random (NaN, as a lost return) until `count` are left: a cloud of
+    exactly that many points, still organized."""
+    flat = scan.points.reshape(-1, 3).copy()
+    finite = np.flatnonzero(np.isfinite(flat).all(axis=1))
+    if len(finite) < count:
+        raise ValueError(f"the scan has {len(finite):,} points, fewer than {count:,}: render it larger")
+    flat[np.random.default_rng(seed).choice(finite, len(finite) - count, replace=False)] = np.nan
+    return Scan(flat.reshape(scan.points.shape), scan.position, scan.rpy)
+
+
 def write_pcd(scan: Scan, path: Path, encoding: str = "binary_compressed", extra: bool = True) -> Path:
     """An organized PCD as PCL and ROS write it: NaN points kept, `label` and `rgba` fields beside x y z."""
     from pypcd4 import Encoding, PointCloud

@@ -1,13 +1,16 @@
 """A 300,000-point scan in a scene: what it adds to a whole `twinmesh tdgen`, side by side in one run.
 
-    python tests/bench/bench_scan_scene.py [--samples 20000] [--size 640x480]
+    python tests/bench/bench_scan_scene.py [--samples 20000] [--points 300000] [--rounds 3]
     python tests/bench/bench_scan_scene.py --figures [--samples 1000]
 
 A depth camera renders the floor and the wall of table-and-wall (the robot's table is known, not
-scanned), with noise and holes; the organized cloud is written as a binary_compressed PCD. Then the
-whole command (a fresh process: imports, scene, model, sampling, files) for the UR10 with 20,000
-samples: in the scene without the scan, with it the first time (the scan read and voxelized into an
-empty cache), and with it again (from the cache). The issue asks <= 1 s added.
+scanned), with noise and holes, thinned to exactly 300,000 returns; the organized cloud is written as a
+binary_compressed PCD. Then the whole command (a fresh process: imports, scene, model, sampling, files)
+for the UR10 with 20,000 samples, alternating: in the scene without the scan, with it the first time
+(the scan read and voxelized into an empty cache), and with it again (from the cache); wall and CPU
+seconds, best of the rounds. The compiled collision model is the machine's own (compiled first if
+need be): a machine compiling it answers with pybullet's exact test meanwhile, which the scan slows
+many times. The issue asks <= 1 s added.
 
 With --figures, the safety figures per scene instead (the docs' table): a UR10 on its known table in
 table-and-wall and in cluttered-lab, everything else known only from a 160x120 scan; of N random
@@ -20,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -31,14 +35,18 @@ import msgspec
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository: tests.scans
 
 from tdgen.robot.surroundings import load_scene  # noqa: E402
-from tests.scans import render_scan, write_pcd  # noqa: E402
+from tests.scans import render_scan, thinned, write_pcd  # noqa: E402
 
 
-def _command(args: list[str], env: dict[str, str]) -> float:
+def _command(args: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """One `twinmesh tdgen`: its wall time and the CPU time of it and its children (s)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     subprocess.run([sys.executable, "-m", "devices", "tdgen", *args, "--no-progress"], check=True, env=env,
                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return time.perf_counter() - t
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
 
 
 VIEWS = {"table-and-wall": ((1.6, -1.4, 1.7), (0.0, 0.3, 0.6)), "cluttered-lab": ((-1.2, -1.3, 2.0), (0.6, 0.4, 0.8))}
@@ -83,10 +91,33 @@ def figures(n: int) -> None:
             truth.close()
 
 
+POINTS = 300_000  # the issue's scan
+VIEW = {"eye": (1.6, -1.4, 1.7), "target": (0.0, 0.3, 0.6), "fov": 90.0, "holes": 0.01, "far": 4.0}
+
+
+def scan_scenes(folder: Path, points: int, size: tuple[int, int]) -> int:
+    """table-and-wall with its table known and the rest a scan of exactly `points` points (a `size` depth
+    image, returns dropped at random down to that): without.json and with.json in `folder`."""
+    base = load_scene("table-and-wall")
+    table = [b for b in base.bodies if b.name == "table"]
+    room = msgspec.structs.replace(base, bodies=[b for b in base.bodies if b.name != "table"])
+    scan = thinned(render_scan(room, size=size, **VIEW), points)  # type: ignore[arg-type]
+    write_pcd(scan, folder / "room.pcd")
+    head = {"name": "scanned", "robot": {"position": list(base.robot.position)}}
+    bodies = [msgspec.to_builtins(b) for b in table]
+    (folder / "without.json").write_text(json.dumps({**head, "bodies": bodies}))
+    scan_body = {"type": "points", "name": "scan", "file": "room.pcd", "position": list(scan.position),
+                 "rpy": list(scan.rpy)}
+    (folder / "with.json").write_text(json.dumps({**head, "bodies": [*bodies, scan_body]}))
+    return len(scan.finite())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--samples", type=int, default=None)
-    parser.add_argument("--size", default="640x480", help="the depth image, pixels (640x480: ~300,000 points)")
+    parser.add_argument("--points", type=int, default=POINTS, help="the scan's points (default: the issue's 300,000)")
+    parser.add_argument("--size", default="960x720", help="the depth image it is thinned from, pixels")
+    parser.add_argument("--rounds", type=int, default=3, help="runs of each, alternating")
     parser.add_argument("--figures", action="store_true", help="the safety figures per scene instead")
     args = parser.parse_args()
     if args.figures:
@@ -94,40 +125,47 @@ def main() -> None:
         return
     args.samples = args.samples or 20000
     width, height = (int(v) for v in args.size.split("x"))
-    base = load_scene("table-and-wall")
-    table = [b for b in base.bodies if b.name == "table"]
-    room = msgspec.structs.replace(base, bodies=[b for b in base.bodies if b.name != "table"])
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         t = time.perf_counter()
-        scan = render_scan(room, eye=(1.6, -1.4, 1.7), target=(0.0, 0.3, 0.6), size=(width, height), fov=90.0,
-                           holes=0.01, far=4.0)
-        write_pcd(scan, folder / "room.pcd")
-        print(f"scan: {len(scan.finite()):,} points ({width}x{height}), rendered in {time.perf_counter() - t:.1f} s")
-        head = {"name": "scanned", "robot": {"position": list(base.robot.position)}}
-        bodies = [msgspec.to_builtins(b) for b in table]
-        (folder / "without.json").write_text(json.dumps({**head, "bodies": bodies}))
-        scan_body = {"type": "points", "name": "scan", "file": "room.pcd", "position": list(scan.position),
-                     "rpy": list(scan.rpy)}
-        (folder / "with.json").write_text(json.dumps({**head, "bodies": [*bodies, scan_body]}))
-        env = {**os.environ, "TWINMESH_CACHE": str(folder / "cache")}
+        count = scan_scenes(folder, args.points, (width, height))
+        print(f"scan: {count:,} points (of a {width}x{height} depth image), rendered in {time.perf_counter() - t:.1f} s; "
+              f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+        # a fresh scan and tdgen cache; the compiled collision model where this machine keeps it (a fresh one
+        # would leave every run to pybullet's exact test while it compiles: what a first start does)
+        env = {**os.environ, "TWINMESH_CACHE": str(folder / "cache"), "NUMBA_CACHE_DIR": str(compiled_model())}
         common = ["ur10.urdf", "--samples", str(args.samples), "--seed", "1"]
-        runs: dict[str, list[float]] = {"without the scan": [], "with the scan, first": [], "with the scan, cached": []}
-        for k in range(2):
-            runs["without the scan"].append(_command([*common, "--scene", str(folder / "without.json"),
-                                                      "--out", str(folder / f"a{k}")], env))
-            label = "with the scan, first" if k == 0 else "with the scan, cached"
-            runs[label].append(_command([*common, "--scene", str(folder / "with.json"), "--out", str(folder / f"b{k}")],
-                                        env))
-        runs["with the scan, cached"].append(_command([*common, "--scene", str(folder / "with.json"),
-                                                       "--out", str(folder / "b2")], env))
-        print(f"whole `twinmesh tdgen ur10.urdf --samples {args.samples}` (s; best of the runs; the issue asks <= 1 s "
-              "added):")
-        best = {label: min(times) for label, times in runs.items()}
-        for label, seconds in best.items():
-            print(f"  {label:24s} {seconds:6.2f}  ({', '.join(f'{s:.2f}' for s in runs[label])})")
-        print(f"added by the scan: {best['with the scan, cached'] - best['without the scan']:+.2f} s cached, "
-              f"{best['with the scan, first'] - best['without the scan']:+.2f} s the first time")
+        runs: dict[str, list[tuple[float, float]]] = {WITHOUT: [], FIRST: [], CACHED: []}
+        for k in range(args.rounds):
+            runs[WITHOUT].append(_command([*common, "--scene", str(folder / "without.json"),
+                                           "--out", str(folder / f"a{k}")], env))
+            runs[FIRST if k == 0 else CACHED].append(_command([*common, "--scene", str(folder / "with.json"),
+                                                               "--out", str(folder / f"b{k}")], env))
+        if args.rounds == 1:
+            runs[CACHED].append(_command([*common, "--scene", str(folder / "with.json"), "--out", str(folder / "b1")],
+                                         env))
+        print(f"whole `twinmesh tdgen ur10.urdf --samples {args.samples}`, a fresh process each (best of the runs; "
+              "wall s, CPU s of it and its children; the issue asks <= 1 s added):")
+        best = {label: (min(w for w, _ in times), min(c for _, c in times)) for label, times in runs.items()}
+        for label, (wall, cpu) in best.items():
+            listed = ", ".join(f"{w:.2f}" for w, _ in runs[label])
+            print(f"  {label:24s} {wall:6.2f} s wall ({listed}), {cpu:6.2f} s CPU")
+        for label in (CACHED, FIRST):
+            wall, cpu = best[label][0] - best[WITHOUT][0], best[label][1] - best[WITHOUT][1]
+            print(f"added by the scan, {label.split(', ')[1]:6s}: {wall:+.2f} s wall, {cpu:+.2f} s CPU")
+
+
+WITHOUT, FIRST, CACHED = "without the scan", "with the scan, first", "with the scan, cached"
+
+
+def compiled_model() -> Path:
+    """Where this machine keeps the compiled collision model, compiled now if it is not yet."""
+    from tdgen.robot.cores import compiled, compiled_code_dir
+
+    if not compiled():
+        print("compiling the collision model first (once per machine) ...")
+        subprocess.run([sys.executable, "-m", "tdgen.robot.fast_collision"], check=True)
+    return compiled_code_dir()
 
 
 if __name__ == "__main__":
