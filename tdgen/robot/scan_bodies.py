@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tdgen.robot.errors import SceneError
 from tdgen.robot.scan_io import read_cloud, read_mesh
 
 PAD = 0.006  # m each box grows: a sample within 5 mm of a scanned point collides (pybullet counts 0.1 mm deep)
@@ -128,18 +129,20 @@ def _voxels(points: np.ndarray, voxel: float) -> Prepared:
     """The occupied voxels' outer faces (faces between an occupied and an empty voxel), merged into
     rectangles, each pushed out by `PAD` and widened by `PAD` on every side: the padded voxels' surface
     with few triangles (pybullet's cost grows with the triangles a link overlaps)."""
-    cells = np.unique(np.floor(points / voxel).astype(np.int64), axis=0)
+    raw = np.floor(points / voxel).astype(np.int64)
+    low = raw.min(axis=0) - 1  # a neighbour's key stays in range
+    occupied = np.unique(_packed(raw - low))  # sorted: the cells in x, y, z order
+    cells = _unpacked(occupied) + low
     box_lo, box_hi = merge_cells(cells)
     boxes = np.stack([box_lo * voxel - PAD, (box_hi + 1) * voxel + PAD], axis=1)
-    occupied = {tuple(c) for c in cells.tolist()}
     rects_lo, rects_hi = [], []
     for axis in range(3):
         step = np.zeros(3, dtype=np.int64)
         step[axis] = 1
         for sign in (1, -1):
-            neighbour = cells + sign * step
-            open_side = np.array([tuple(c) not in occupied for c in neighbour.tolist()], dtype=bool)
-            faces = cells[open_side]
+            neighbour = _packed(cells - low + sign * step)
+            at = np.minimum(np.searchsorted(occupied, neighbour), len(occupied) - 1)
+            faces = cells[occupied[at] != neighbour]  # the side towards an empty voxel
             if not len(faces):
                 continue
             lo, hi = merge_cells(faces, [a for a in range(3) if a != axis])
@@ -152,6 +155,22 @@ def _voxels(points: np.ndarray, voxel: float) -> Prepared:
     parts = [_rect_mesh(lows[g], highs[g]) for g in _split((lows + highs) / 2, MAX_PARTS)]
     stats = {"points": len(points), "voxels": len(cells), "boxes": len(boxes), "faces": len(lows)}
     return Prepared("voxels", parts, stats, lows.min(axis=0), highs.max(axis=0), boxes)
+
+
+_BITS = 21  # per axis in a cell's key: 2 million voxels across
+
+
+def _packed(cells: np.ndarray) -> np.ndarray:
+    """Cells (N, 3) of non-negative coordinates as one int64 each, in the order of their coordinates: sorting
+    and looking up 300,000 cells as numbers, not as rows or tuples."""
+    if len(cells) and int(cells.max()) >= 1 << _BITS:
+        raise SceneError(f"a scan more than {1 << _BITS:,} voxels across: give it a larger voxel")
+    return (cells[:, 0] << (2 * _BITS)) | (cells[:, 1] << _BITS) | cells[:, 2]
+
+
+def _unpacked(keys: np.ndarray) -> np.ndarray:
+    mask = (1 << _BITS) - 1
+    return np.column_stack([keys >> (2 * _BITS), (keys >> _BITS) & mask, keys & mask])
 
 
 def merge_cells(cells: np.ndarray, axes=(0, 1, 2)) -> tuple[np.ndarray, np.ndarray]:
