@@ -133,14 +133,18 @@ def generate(robot: Robot | str | Path, scene: Surroundings | str | Path | None 
     timings: dict[str, float] = {}
 
     t = time.perf_counter()
-    sampled = sample_workspace(robot, scene, samples, seed, workers=workers, progress=progress,
-                               on_progress=on_progress, collision_model=collision_model)
-    if frame == "real":
-        assert calibration is not None, "_calibration refuses the real frame without a calibration"
-        sampled = Samples(sampled.q, np.round(calibration.apply(sampled.positions), 3), sampled.collision)
-    timings["sampling"] = time.perf_counter() - t
-    return write_artefacts(robot, scene, sampled, out_dir, Naming(thing, thing_id, base_url, security), seed,
-                           calibration, frame, concave, timings=timings, started=started)
+    world = CollisionWorld(robot, scene)  # one for the sampling and the warnings: a scan is built into pybullet once
+    try:
+        sampled = sample_workspace(robot, scene, samples, seed, workers=workers, progress=progress,
+                                   on_progress=on_progress, collision_model=collision_model, world=world)
+        if frame == "real":
+            assert calibration is not None, "_calibration refuses the real frame without a calibration"
+            sampled = Samples(sampled.q, np.round(calibration.apply(sampled.positions), 3), sampled.collision)
+        timings["sampling"] = time.perf_counter() - t
+        return write_artefacts(robot, scene, sampled, out_dir, Naming(thing, thing_id, base_url, security), seed,
+                               calibration, frame, concave, timings=timings, started=started, world=world)
+    finally:
+        world.close()
 
 
 @dataclass(frozen=True)
@@ -158,15 +162,17 @@ def write_artefacts(robot: Robot, scene: Surroundings, sampled: Samples, out_dir
                     seed: int | None, calibration: Calibration | None = None, frame: Frame = "twin",
                     concave: bool = False, points: bytes | bytearray | points_csv.Flags | None = None,
                     timings: dict[str, float] | None = None, started: float | None = None,
-                    warnings: list[str] | None = None, write: Writer | None = None) -> GenerationResult:
+                    warnings: list[str] | None = None, write: Writer | None = None,
+                    world: CollisionWorld | None = None) -> GenerationResult:
     """The workspace, the TD and the files of samples taken in `scene` (positions already in the TD's
     frame). `points`: the points.csv of exactly these samples when it is at hand (a live update's), else
     it is written from them; `warnings`: `collision_warnings` of them, if known. A generation and a live
     update of the same samples write the same bytes. `write(path, content)` (default: into the file) is
-    handed each file instead: a live update keeps them in memory and serves them before they are on disk."""
+    handed each file instead: a live update keeps them in memory and serves them before they are on disk.
+    `world`: a collision world of `scene` already open, to ask what collides."""
     timings = {} if timings is None else timings
     started = time.perf_counter() if started is None else started
-    warnings = collision_warnings(robot, scene, sampled) if warnings is None else warnings
+    warnings = collision_warnings(robot, scene, sampled, world=world) if warnings is None else warnings
 
     t = time.perf_counter()
     free = sampled.free
@@ -262,7 +268,7 @@ def _hangs(robot: Robot) -> bool:
 
 
 def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, at_rest: list[str] | None = None,
-                       pairs: list[list[str]] | None = None) -> list[str]:
+                       pairs: list[list[str]] | None = None, world: CollisionWorld | None = None) -> list[str]:
     """When most samples collide and the robot collides already at rest (joints at 0, within their limits:
     the URDF's collision meshes overlap by design, the usual cause), or nearly all collide (a scene that
     leaves the robot little room), say so and name the link pairs that collide most; most colliding
@@ -273,24 +279,23 @@ def collision_warnings(robot: Robot, scene: Surroundings, samples: Samples, at_r
     allows exactly each. A pair that collides as often but not at rest is an arm folding into itself (a
     UR5's upper arm into its base in 37 % of its poses): not said. `at_rest`: `robot_at_rest(robot)`, if
     known; `pairs`: what collides in each of the first PAIR_SAMPLES
-    colliding samples, if known (a live update's)."""
+    colliding samples, if known (a live update's); `world`: a collision world of `scene` already open, else
+    one is made when needed."""
     share = float(samples.collision.mean()) if len(samples.collision) else 0.0
     if share < BY_DESIGN:
         return []
     colliding = samples.q[samples.collision][:PAIR_SAMPLES]
-    world = None
-    if pairs is None:
+    owned = world is None and pairs is None
+    if owned:
         world = CollisionWorld(robot, scene)
-        try:
-            pairs = [world.what_collides(q) for q in colliding]
-        except BaseException:
-            world.close()
-            raise
     try:
+        if pairs is None:
+            assert world is not None, "made above when not given"
+            pairs = [world.what_collides(q) for q in colliding]
         return _warnings(robot, scene, share, len(colliding), Counter(pair for found in pairs for pair in found),
                          at_rest, world, set(body_names(scene)))
     finally:
-        if world is not None:
+        if owned and world is not None:
             world.close()
 
 

@@ -82,7 +82,7 @@ def default_workers() -> int:
 
 def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None = 0, workers: int | None = None,
                      progress: bool = False, on_progress: Callable[[float], None] | None = None,
-                     collision_model: CollisionModel = "fast") -> Samples:
+                     collision_model: CollisionModel = "fast", world: CollisionWorld | None = None) -> Samples:
     """Draw n configurations and find their end-effector positions and collisions.
 
     `collision_model` "fast" (the default) or "exact" (pybullet for every configuration). Exact checks
@@ -93,6 +93,7 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
     a first workspace without waiting for the compiler.
     The progress bar goes to stderr and only shows when asked and stderr is a terminal;
     `on_progress(fraction)` is called after each chunk of configurations is checked.
+    `world`: a collision world of `robot` in `scene` the caller holds (and closes), else one is made here.
     """
     if n < 1:
         raise ValueError("need at least one sample")
@@ -111,7 +112,8 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
 
     with bar:
         # a scene or robot pybullet cannot load fails here, in a fraction of a second
-        world = CollisionWorld(robot, scene)
+        owned = world is None
+        world = CollisionWorld(robot, scene) if world is None else world
         try:
             if collision_model == "exact":
                 tips = _tip_positions(world, robot, scene, q)
@@ -125,7 +127,8 @@ def sample_workspace(robot: Robot, scene: Surroundings, n: int, seed: int | None
             else:
                 collision, tips = _fast(world, robot, scene, q, workers, done)
         finally:
-            world.close()
+            if owned:
+                world.close()
     return Samples(q=q, positions=np.round(tips * 1000.0, 3), collision=collision)
 
 

@@ -43,6 +43,9 @@ LOOK_EVERY = 1.0  # s between a warm model's looks for compiled code that anothe
 
 def _stacked(arrays: list[np.ndarray], trailing: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Arrays of different lengths as one zero-padded (K, W, *trailing) array, and their lengths."""
+    lengths = np.array([len(a) for a in arrays], dtype=np.int64)
+    if len(arrays) and lengths.min() == lengths.max() > 0:  # all alike (a scan's boxes): at once
+        return np.stack(arrays).astype(float, copy=False).reshape(len(arrays), -1, *trailing), lengths
     width = max([len(a) for a in arrays] + [1])
     out = np.zeros((len(arrays), width, *trailing))
     for k, a in enumerate(arrays):
@@ -53,7 +56,10 @@ def _stacked(arrays: list[np.ndarray], trailing: tuple[int, ...]) -> tuple[np.nd
 def _planes(rows: list[np.ndarray]) -> np.ndarray:
     """(E, J, 4) half-spaces per element, padded by repeating a row (a max over rows is unchanged);
     an element with none gets 0.x <= -1 (nothing is ever inside it)."""
-    width = max([len(r) for r in rows] + [1])
+    lengths = [len(r) for r in rows]
+    if rows and min(lengths) == max(lengths) > 0:  # all alike (a scan's boxes): at once
+        return np.stack(rows).astype(float, copy=False)
+    width = max(lengths + [1])
     out = np.zeros((len(rows), width, 4))
     for k, r in enumerate(rows):
         r = r if len(r) else np.array([[0.0, 0.0, 0.0, -1.0]])
@@ -199,9 +205,10 @@ class SphereModel:
     @staticmethod
     def _scene_tables(elements: list[Convex]) -> dict[str, np.ndarray]:
         outside = [outer_planes(e) for e in elements]
-        centres = np.array([(e.points.min(axis=0) + e.points.max(axis=0)) / 2 for e in elements]).reshape(-1, 3)
-        radii = np.array([np.max(np.linalg.norm(e.points - c, axis=1)) for e, c in zip(elements, centres)])
         corners, counts = _stacked([e.points for e in elements], (3,))
+        held = (np.arange(corners.shape[1]) < counts[:, None])[..., None]  # the padding left out
+        centres = (np.where(held, corners, np.inf).min(axis=1) + np.where(held, corners, -np.inf).max(axis=1)) / 2
+        radii = np.where(held[..., 0], np.linalg.norm(corners - centres[:, None], axis=2), 0.0).max(axis=1, initial=0.0)
         inside, inside_counts = _stacked([e.inner_points() for e in elements], (3,))
         return _groups(centres, radii) | {"el_points": corners, "el_np": counts, "el_in": inside, "el_in_n": inside_counts,
             "el_outer": _planes(outside), "el_outer_n": np.array([len(p) for p in outside], dtype=np.int64),
