@@ -74,12 +74,17 @@ def _read(kind: str, name: str, data: bytes, scale: float, max_points: int) -> A
 
         if suffix not in MESH_FILES:
             raise ValueError(f"{name}: {suffix or 'no extension'} is not a mesh format drawn here")
-        mesh = trimesh.load(io.BytesIO(data), file_type=suffix[1:], force="mesh")
+        mesh = trimesh.load(io.BytesIO(data), file_type=suffix[1:], force="mesh", process=False)  # drawn as it is
         if not isinstance(mesh, trimesh.Trimesh) or not len(mesh.faces):
             raise ValueError(f"{name}: the mesh has no faces")
         mesh.apply_scale(scale)
+        faces = np.asarray(mesh.faces)
+        if len(mesh.vertices) == faces.size and (faces.ravel() == np.arange(faces.size)).all():  # STL: none shared
+            normals = np.repeat(mesh.face_normals, 3, axis=0)  # what trimesh's vertex normals come to, cheaply
+        else:
+            normals = mesh.vertex_normals
         return Asset("mesh", digest, vertices=np.asarray(mesh.vertices, np.float32),
-                     triangles=np.asarray(mesh.faces, np.uint32), normals=np.asarray(mesh.vertex_normals, np.float32))
+                     triangles=faces.astype(np.uint32), normals=np.asarray(normals, np.float32))
     raise ValueError(f"{name}: a {kind!r} body names no file to draw")
 
 
