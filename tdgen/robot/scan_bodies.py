@@ -276,17 +276,35 @@ def fast_elements(pb, client: int, body: int) -> list[tuple[np.ndarray, np.ndarr
     """A scan body's padded boxes as the fast model's elements (scene frame): (corners, half-spaces) per box,
     for `spheres.Convex(corners, planes, outside=planes)`; None for any other body.
     Solid boxes where pybullet holds their padded union's surface: a link overlaps a box deeper than
-    the fast model's sure depth only through that surface, as scanned shells are a voxel or two thick."""
+    the fast model's sure depth only through that surface, as scanned shells are a voxel or two thick.
+    Boxes longer than `FAST_PIECE` are cut into pieces: the model skips a box that a sphere around it keeps
+    from a link's sphere, and the sphere around a run the length of the floor meets every link."""
     boxes = boxes_of(pb, client, body)
     if boxes is None:
         return None
-    lo, hi = boxes[:, 0], boxes[:, 1]
+    lo, hi = _pieces(boxes[:, 0], boxes[:, 1], FAST_PIECE)
     signs = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
     corners = np.where(signs[None].astype(bool), hi[:, None, :], lo[:, None, :])  # (B, 8, 3)
     normals = np.array([[-1.0, 0, 0], [1.0, 0, 0], [0, -1.0, 0], [0, 1.0, 0], [0, 0, -1.0], [0, 0, 1.0]])
     offsets = np.stack([-lo[:, 0], hi[:, 0], -lo[:, 1], hi[:, 1], -lo[:, 2], hi[:, 2]], axis=1)  # n.x <= d
-    planes = np.concatenate([np.broadcast_to(normals, (len(boxes), 6, 3)), offsets[..., None]], axis=2)
+    planes = np.concatenate([np.broadcast_to(normals, (len(lo), 6, 3)), offsets[..., None]], axis=2)
     return list(zip(corners, planes))
+
+
+FAST_PIECE = 0.3  # m: the longest side of a box as the fast model takes it (its broad phase's cell)
+
+
+def _pieces(lo: np.ndarray, hi: np.ndarray, longest: float) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes (low, high corners, (B, 3) each) cut into equal pieces no longer than `longest` along any axis,
+    which tile them exactly (a cut is the same number on both of its sides)."""
+    parts = np.maximum(1, np.ceil((hi - lo) / longest)).astype(np.int64)  # (B, 3) pieces per axis
+    counts = parts.prod(axis=1)
+    box = np.repeat(np.arange(len(lo)), counts)
+    k = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)  # the piece within its box
+    n = parts[box]
+    at = np.column_stack([k // (n[:, 1] * n[:, 2]), (k // n[:, 2]) % n[:, 1], k % n[:, 2]])
+    step = (hi - lo)[box] / n
+    return lo[box] + at * step, np.where(at + 1 == n, hi[box], lo[box] + (at + 1) * step)
 
 
 def build(prepared: Prepared, position, orientation, client: int) -> int:
