@@ -148,8 +148,8 @@ def main() -> None:
               "wall s, CPU s of it and its children; the issue asks <= 1 s added):")
         best = {label: (min(w for w, _ in times), min(c for _, c in times)) for label, times in runs.items()}
         for label, (wall, cpu) in best.items():
-            listed = ", ".join(f"{w:.2f}" for w, _ in runs[label])
-            print(f"  {label:24s} {wall:6.2f} s wall ({listed}), {cpu:6.2f} s CPU")
+            walls, cpus = (", ".join(f"{v[i]:.2f}" for v in runs[label]) for i in (0, 1))
+            print(f"  {label:24s} {wall:6.2f} s wall ({walls}), {cpu:6.2f} s CPU ({cpus})")
         for label in (CACHED, FIRST):
             wall, cpu = best[label][0] - best[WITHOUT][0], best[label][1] - best[WITHOUT][1]
             print(f"added by the scan, {label.split(', ')[1]:6s}: {wall:+.2f} s wall, {cpu:+.2f} s CPU")
