@@ -7,6 +7,10 @@ the lights off and white, the platform's world reset; what the module started on
 must be listed alone again before the next module borrows it. The lab stops with the session, and
 must stop cleanly.
 
+The `iot-lab` is shared the same way by the modules that used to start it alike (`iot_lab`); a session
+fixture lives once per xdist worker, so those modules carry `xdist_group("iot-lab")` and run on one worker
+(`--dist loadgroup`; every other module is a group of its own, as under `--dist loadfile`).
+
 Test helpers (`labs`, `waiting`, `probe`, `recordings`, `arms`, `zoo`, `tdschema`, `interop`) are
 modules of this folder: test modules import from them, never from each other.
 """
@@ -23,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from labs import PLATFORM_THINGS, Lab, start_lab, start_robot_lab  # noqa: E402
 from waiting import eventually  # noqa: E402
 
+IOT_LAB_THINGS = PLATFORM_THINGS | {"ur10", "light-left", "light-right", "pan-tilt-1", "pan-tilt-2", "tdgen"}
 LIGHTS_THINGS = frozenset({"light-left", "light-right", "tdgen"})  # `up` always starts the TD generator
 PLATFORM_LISTED = PLATFORM_THINGS | {"tdgen"}
 
@@ -109,3 +114,50 @@ def platform(platform_lab) -> Iterator[Lab]:
     """The shared iot-platform lab, its world reset (cubes in the warehouse, arms home, belts stopped)."""
     with lend(platform_lab, PLATFORM_LISTED, _world_reset) as lab:
         yield lab
+
+
+def _room_reset(lab: Lab) -> None:
+    """The room as it starts: no obstacle, the simulation as fast as it goes, the world reset (cubes, belts,
+    arms, pan-tilts), the lights off."""
+    for obstacle in httpx.get(f"{lab.http}/world/properties/obstacles", timeout=30).json():
+        r = httpx.post(f"{lab.http}/world/actions/removeObstacle", json={"name": obstacle["name"]}, timeout=120)
+        assert r.status_code == 200, r.text
+    assert httpx.put(f"{lab.http}/world/properties/speed", json=0, timeout=30).status_code == 204
+    _world_reset(lab)
+    _lights_off(lab)
+
+
+@pytest.fixture(scope="session")
+def iot_lab_shared(tmp_path_factory, tdgen_cache) -> Iterator[Lab]:
+    """`twinmesh up --speed max --samples 4000` (the iot-lab) with the adapter and the session's tdgen cache."""
+    lab = start_lab(tmp_path_factory.mktemp("shared-iot-lab"), None, http=True, things=set(IOT_LAB_THINGS),
+                    extra_args=("--speed", "max", "--samples", "4000", "--tdgen-cache", str(tdgen_cache)))
+    yield lab
+    assert lab.stop(), "the shared iot-lab did not stop cleanly on Ctrl-C"
+
+
+@pytest.fixture(scope="module")
+def iot_lab(iot_lab_shared) -> Iterator[Lab]:
+    """The shared iot-lab, its room reset, for this module (whose tests carry `xdist_group("iot-lab")`)."""
+    with lend(iot_lab_shared, IOT_LAB_THINGS, _room_reset) as lab:
+        yield lab
+
+
+def _cost(item: pytest.Item) -> int:
+    """0: minutes on its own (`slow`); 1: a browser or node-wot; 2: a lab; 3: the unit layer."""
+    marks = {mark.name for mark in item.iter_markers()}
+    return 0 if "slow" in marks else 1 if marks & {"browser", "interop"} else 2 if "lab" in marks else 3
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The costliest modules first, each module whole and in its own order: xdist hands out work units in
+    collection order (`--no-loadscope-reorder`), so the long ones start at once and the unit layer fills the
+    gaps at the end, instead of a module of minutes starting last beside an idle worker. Every module not in
+    a named `xdist_group` is a group of its own (`--dist loadgroup` then keeps it on one worker)."""
+    cost: dict[Path, int] = {}
+    for item in items:
+        cost[item.path] = min(cost.get(item.path, 3), _cost(item))
+        if item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(str(item.path.relative_to(item.config.rootpath))))
+    items.sort(key=lambda item: cost[item.path])

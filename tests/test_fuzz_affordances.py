@@ -17,12 +17,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis_jsonschema import from_schema
-from labs import start_lab
 
-pytestmark = pytest.mark.lab
+pytestmark = [pytest.mark.lab, pytest.mark.xdist_group("iot-lab")]  # the shared iot-lab
 
 EXAMPLES = int(os.environ.get("TWINMESH_FUZZ_EXAMPLES", "4"))
-SAMPLES = "3000"
 SCHEMA_KEYS = {"type", "const", "enum", "minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "minLength",
                "maxLength", "pattern", "minItems", "maxItems", "items", "properties", "required"}
 # properties that change by themselves (time, poses, sensors watching the room): left out of "unchanged"
@@ -67,12 +65,8 @@ def almost(schema: dict) -> st.SearchStrategy:
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory, tdgen_cache):
-    tmp = tmp_path_factory.mktemp("fuzz")
-    lab = start_lab(tmp, None, http=True, extra_args=("--speed", "max", "--samples", SAMPLES,
-                                                      "--tdgen-cache", str(tdgen_cache)))
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(iot_lab):
+    return iot_lab  # the session's iot-lab, its room reset, lent to this module (conftest.py)
 
 
 @pytest.fixture(scope="module")

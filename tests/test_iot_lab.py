@@ -2,7 +2,9 @@
 behind its safety wall, box obstacles that regenerate the UR10's workspace, the pan-tilts' colour
 sensors and the lamps, over HTTP as a WoT client sees them.
 
-One lab for the module (`twinmesh up --speed max --samples 4000`, a fresh tdgen cache).
+The session's iot-lab (`twinmesh up --speed max --samples 4000`, conftest.py's `iot_lab`), its room reset for
+the module: the UR10's twin may have changed before (its version counts every change of its scene), so each
+test counts from the version it finds.
 """
 from __future__ import annotations
 
@@ -15,7 +17,6 @@ import time
 import httpx
 import numpy as np
 import pytest
-from labs import start_lab
 from tdschema import assert_valid_td
 from waiting import always
 
@@ -23,9 +24,8 @@ from devices.sim.robot_twin import workspace_from_csv
 from mesh.messages.relations import POINTS, SCENE
 from tdgen.robot.workspace_check import DEFAULT_K, DEFAULT_RADIUS_MM
 
-pytestmark = pytest.mark.lab
+pytestmark = [pytest.mark.lab, pytest.mark.xdist_group("iot-lab")]  # the shared iot-lab
 
-SAMPLES = "4000"
 PROBLEM = "application/problem+json"
 LISTED = {"dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2", "color-sensor",
           "uarm", "ur10", "light-left", "light-right", "pan-tilt-1", "pan-tilt-2"}
@@ -33,12 +33,8 @@ CRATE = {"name": "crate", "size": [0.3, 0.3, 0.3], "position": [2.3, -0.42, 0.9]
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("iot-lab")
-    lab = start_lab(tmp, None, http=True, things=LISTED | {"world", "tdgen"},
-                    extra_args=("--speed", "max", "--samples", SAMPLES, "--tdgen-cache", str(tmp / "cache")))
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(iot_lab):
+    return iot_lab  # the session's iot-lab, its room reset, lent to this module (conftest.py)
 
 
 @pytest.fixture
@@ -57,6 +53,11 @@ def ur10_td(http: httpx.Client, version: int, timeout: float = 120.0) -> dict:
             return td
         time.sleep(0.05)
     raise AssertionError(f"no generated ur10 TD for version {version} within {timeout} s; last: {td.get('version')}")
+
+
+def twin_version(http: httpx.Client) -> int:
+    """The UR10 twin's version now (bumped by every change of its scene)."""
+    return http.get("/ur10/files/twin.json").json()["version"]
 
 
 def _links(td: dict) -> dict[str, str]:
@@ -128,7 +129,7 @@ def test_up_without_a_scene_starts_the_iot_lab_with_every_device(lab, http):
 
 
 def test_the_ur10_cannot_reach_past_its_safety_wall(lab, http):
-    td = ur10_td(http, 0)
+    td = ur10_td(http, twin_version(http))
     # the UR10 stands at x = 2.3 m facing -x; the wall is at x = 1.45 m: 850 mm ahead in the TD frame
     assert td["properties"]["getCartesianposition"]["properties"]["x"]["maximum"] < 850
     before = http.get("/ur10/properties/getJointposition").json()
@@ -140,7 +141,8 @@ def test_the_ur10_cannot_reach_past_its_safety_wall(lab, http):
 
 
 def test_an_obstacle_shrinks_the_ur10s_workspace_and_observers_notice(lab, http):
-    td0 = ur10_td(http, 0)
+    version = twin_version(http)
+    td0 = ur10_td(http, version)
     points0 = _points(http, td0)
     obstacles = long_poll(f"{lab.http}/world/properties/obstacles/observable")
     twin_changed = long_poll(f"{lab.http}/ur10/events/twinChanged")
@@ -149,11 +151,11 @@ def test_an_obstacle_shrinks_the_ur10s_workspace_and_observers_notice(lab, http)
     r = http.post("/world/actions/addObstacle", json=CRATE)
     assert r.status_code in (200, 204), r.text
     assert [o["name"] for o in obstacles.get(timeout=30).json()] == ["crate"]
-    assert twin_changed.get(timeout=30).json() == {"robot": "ur10", "version": 1}
+    assert twin_changed.get(timeout=30).json() == {"robot": "ur10", "version": version + 1}
     assert http.get("/world").json()["version"]["instance"] != world_version  # the recorder reloads the scene
     assert "obstacle-crate" in {b["name"] for b in http.get("/world/files/scene.json").json()["bodies"]}
 
-    td1 = ur10_td(http, 1)
+    td1 = ur10_td(http, version + 1)
     points1 = _points(http, td1)
     free0, free1 = ~points0.collision, ~points1.collision
     assert len(points1.positions) == len(points0.positions)  # the same sampled configurations...
@@ -173,7 +175,7 @@ def test_an_obstacle_shrinks_the_ur10s_workspace_and_observers_notice(lab, http)
 
     r = http.post("/world/actions/removeObstacle", json={"name": "crate"})
     assert r.status_code == 200 and r.json()["name"] == "crate"
-    td2 = ur10_td(http, 2)
+    td2 = ur10_td(http, version + 2)
     assert np.array_equal(_points(http, td2).collision, points0.collision)  # the same surroundings again
     assert http.get("/world/properties/obstacles").json() == []
 
@@ -182,7 +184,7 @@ def test_a_box_reaches_the_ur10s_td_by_a_live_update_and_the_next_plan_is_checke
     """The tdgen service follows the box by a live update (only the samples it can touch checked), and a
     plan asked right after `addObstacle` returns, before anyone has seen the new TD, is answered from the
     new scene's workspace: the collision probability of the target's sampled neighbours is the new one."""
-    version = http.get("/ur10/files/twin.json").json()["version"]
+    version = twin_version(http)
     points0 = _points(http, ur10_td(http, version))
     crate = {**CRATE, "name": "live-crate"}
     free0 = ~points0.collision
@@ -210,14 +212,14 @@ def ur10_frame(scene_xyz: list[float]) -> np.ndarray:
 
 
 def test_bad_obstacles_are_refused_and_nothing_changes(lab, http):
-    version = http.get("/ur10/files/twin.json").json()["version"]  # bumped by every change of its scene
+    version = twin_version(http)
     through_the_robot = {"name": "pillar", "size": [0.2, 0.2, 0.4], "position": [2.3, 0.0, 0.9]}
     r = http.post("/world/actions/addObstacle", json=through_the_robot)
     assert r.status_code == 422 and r.headers["content-type"].startswith(PROBLEM)
     assert r.json()["reason"] == "obstacle-hits-robot"
     r = http.post("/world/actions/removeObstacle", json={"name": "nothing-here"})
     assert r.status_code == 422 and r.json()["reason"] == "no-such-obstacle"
-    assert http.get("/ur10/files/twin.json").json()["version"] == version  # the refusals changed nothing
+    assert twin_version(http) == version  # the refusals changed nothing
     for bad in ({**CRATE, "size": [0.3, -0.3, 0.3]}, {**CRATE, "name": "Not A Slug"}, {"name": "x"}):
         r = http.post("/world/actions/addObstacle", json=bad)
         assert r.status_code == 400 and r.headers["content-type"].startswith(PROBLEM), bad
@@ -227,7 +229,7 @@ def test_bad_obstacles_are_refused_and_nothing_changes(lab, http):
     assert [o["name"] for o in http.get("/world/properties/obstacles").json()] == ["crate"]
     assert http.post("/world/actions/removeObstacle", json={"name": "crate"}).status_code == 200
     assert http.get("/world/properties/obstacles").json() == []
-    assert http.get("/ur10/files/twin.json").json()["version"] == version + 2  # one add, one remove
+    assert twin_version(http) == version + 2  # one add, one remove
 
 
 def test_a_light_switched_on_lights_its_lamp_in_the_world(lab, http):

@@ -21,15 +21,11 @@ import httpx
 import jsonschema
 import pytest
 from interop import npm
-from labs import start_lab
 
 from mesh.wot.units import PREFIX, QUDT_UNITS
 
-pytestmark = pytest.mark.lab
+pytestmark = [pytest.mark.lab, pytest.mark.xdist_group("iot-lab")]  # the shared iot-lab
 
-SAMPLES = "3000"
-THINGS = {"dobot", "conveyor-belt-1", "conveyor-belt-2", "infrared-sensor-1", "infrared-sensor-2", "color-sensor",
-          "uarm", "ur10", "light-left", "light-right", "pan-tilt-1", "pan-tilt-2", "world", "tdgen"}
 PROBLEM = "application/problem+json"
 REFUSALS = {409, 422, 503}       # SPEC §7: a valid request the device refuses, or a Thing that cannot act now
 PENDING = 0.4                    # s a long-poll must stay open without a change
@@ -44,12 +40,8 @@ ACTION_STATUS = {  # the WoT Profile's ActionStatus, as twinmesh answers it
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory, tdgen_cache):
-    tmp = tmp_path_factory.mktemp("conformance")
-    lab = start_lab(tmp, None, http=True, things=THINGS,
-                    extra_args=("--speed", "max", "--samples", SAMPLES, "--tdgen-cache", str(tdgen_cache)))
-    yield lab
-    assert lab.stop(), "the lab did not stop cleanly"
+def lab(iot_lab):
+    return iot_lab  # the session's iot-lab, its room reset, lent to this module (conftest.py)
 
 
 @pytest.fixture(scope="module")
