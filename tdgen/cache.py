@@ -29,6 +29,7 @@ import mesh.wot
 from mesh.messages.scene_description import TwinDescription
 from mesh.urdf_resources import MESH_FILENAME, resolve_uri
 from tdgen.robot.cores import user_cache
+from tdgen.robot.scan_io import content_digest
 from tdgen.robot.surroundings import PYBULLET_DATA
 
 DONE = "done"  # written last: an entry without it is not one
@@ -90,11 +91,7 @@ def scene_files_fingerprint(scene: dict) -> str | None:
     for name in named:
         h.update(name.encode() + b"\0")
         path = Path(name).expanduser()
-        if path.is_file():
-            with path.open("rb") as f:
-                h.update(hashlib.file_digest(f, "sha256").digest())
-        else:
-            h.update(b"<missing>")
+        h.update(content_digest(path).encode() if path.is_file() else b"<missing>")
     return h.hexdigest()[:16]
 
 

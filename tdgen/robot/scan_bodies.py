@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from tdgen.robot.errors import SceneError
-from tdgen.robot.scan_io import read_cloud, read_mesh
+from tdgen.robot.scan_io import content_digest, read_cloud, read_mesh
 
 PAD = 0.006  # m each box grows: a sample within 5 mm of a scanned point collides (pybullet counts 0.1 mm deep)
 DEFAULT_VOXEL = 0.02  # m
@@ -81,10 +81,7 @@ def _prepared(path: Path, params: tuple, make) -> Prepared:
     """`make()` once per file content and `params`: from memory, from the cache dir, or made and kept.
     Known by content, never by a file's time: a scan written again within the clock's tick is new."""
     start = time.perf_counter()
-    digest = ""
-    if path.is_file():
-        with path.open("rb") as f:
-            digest = hashlib.file_digest(f, "sha256").hexdigest()
+    digest = content_digest(path) if path.is_file() else ""
     key = hashlib.sha256(repr((FORMAT, digest, params)).encode()).hexdigest()[:32]
     if digest and key in _MEMORY:
         return _MEMORY[key]

@@ -11,6 +11,8 @@ installed (neither is needed for the other formats).
 """
 from __future__ import annotations
 
+import hashlib
+import time
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +72,26 @@ def read_mesh(path: Path, scale: float = 1.0):
         raise SceneError(f"{path}: the mesh is {extent:,.0f} m across: millimetres given as metres? "
                          "(give the body \"scale\": 0.001)")
     return mesh
+
+
+SETTLED = 2.0  # s: a file unchanged this long is known by its size, times and inode until they change
+_DIGESTS: dict[str, tuple[tuple[int, int, int, int], str]] = {}
+
+
+def content_digest(path: Path) -> str:
+    """The sha256 of the file's content (hex): what a scan or mesh is known by in the caches, never its path or
+    time. Hashed again whenever its size, times or inode differ from the last hash; a file changed within
+    `SETTLED` of its hash is hashed every time (a write within the clock's tick leaves its times as they were)."""
+    stat = path.stat()
+    mark = (stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns, stat.st_ino)
+    held = _DIGESTS.get(str(path))
+    if held is not None and held[0] == mark:
+        return held[1]
+    with path.open("rb") as f:
+        digest = hashlib.file_digest(f, "sha256").hexdigest()
+    if time.time_ns() - max(stat.st_mtime_ns, stat.st_ctime_ns) > SETTLED * 1e9:
+        _DIGESTS[str(path)] = (mark, digest)
+    return digest
 
 
 def _first_line(exc: Exception) -> str:
