@@ -17,10 +17,11 @@ plus the event `twinChanged {robot, version}` and the files `twin.json` (its
    replaces its TD with the service's (`update_td`: observers of `<prefix>/<robot>/td` see it),
    which links all five files with relative hrefs `files/...` (relations: mesh.messages.relations).
 
-The files the scene's mesh and points bodies name (CAD meshes, scans) are served too, from the start, each
-linked from both TDs (`rel` scene-asset) under the name the served scene.json gives it (relative to
-scene.json; `devices.things.scene_files`), so that a consumer that downloads the scene can rebuild it.
-twin.json keeps the paths on this host (the tdgen service reads them there) and maps each to its name.
+The files the scene's mesh and points bodies name (CAD meshes, scans) are served too, those of a scene
+change (an obstacle from a file) from that change on, each linked from the TD (`rel` scene-asset) under
+the name the served scene.json gives it (relative to scene.json; `devices.things.scene_files`), so that
+a consumer that downloads the scene can rebuild it. twin.json keeps the paths on this host (the tdgen
+service reads them there) and maps each to its name. Every file goes through one lookup, as files come.
 
 Both TDs come from `tdgen.robot_td.robot_td`, the builder `twinmesh tdgen` uses offline.
 
@@ -36,7 +37,7 @@ import logging
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import msgspec
 
@@ -47,7 +48,7 @@ from mesh.fabric.server import ExposedThing
 from mesh.fabric.settings import MeshSettings
 from mesh.fabric.state_publisher import StatePublisher
 from mesh.messages.scene_description import DEFAULT_SAMPLES, TWIN_CHANGED, TWIN_FILE, TwinDescription
-from mesh.wot.problem import BadInput, Problem
+from mesh.wot.problem import BadInput, NotFound, Problem
 from mesh.wot.thing_description import ThingDescription, decode_td
 from tdgen.robot import points_csv
 from tdgen.robot_td import ARTEFACTS, URDF_TYPE, policy, robot_td
@@ -125,12 +126,11 @@ class RobotThing:
         t.on_action("moveToPose", self._move_to_pose)
         t.on_action("planMove", self.plan)
         t.on_action("stop", lambda _: {"stopped": twin.stop()})
-        t.on_file(TWIN_FILE, lambda: msgspec.json.encode(self.description()), "application/json")
-        t.on_file(path.name, lambda: self._urdf_bytes, URDF_TYPE)
-        for name, (_, media) in ARTEFACTS.items():
-            t.on_file(name, functools.partial(self._artefact, name), media)
-        for asset in self.scene_assets.assets():
-            t.on_file(asset.name, asset.read, asset.media_type)
+        self._files: dict[str, tuple[Callable[[], bytes | bytearray], str]] = {
+            TWIN_FILE: (lambda: msgspec.json.encode(self.description()), "application/json"),
+            path.name: (lambda: self._urdf_bytes, URDF_TYPE),
+            **{name: (functools.partial(self._artefact, name), media) for name, (_, media) in ARTEFACTS.items()}}
+        t.on_any_file(self._file)
         self.publisher = StatePublisher(t, lambda: {"getJointposition": twin.joint_position(),
                                                     "getCartesianposition": twin.cartesian_position()}, rate)
         twin.on_state(self.publisher.changed)
@@ -144,6 +144,16 @@ class RobotThing:
         twin = self.twin.description(self._urdf, self._urdf_sha, self.twin.robot.urdf_path.name, self.samples,
                                      self.seed)
         return msgspec.structs.replace(twin, scene_files=self.scene_assets.names())
+
+    def _file(self, name: str) -> tuple[bytes | bytearray, str]:
+        """files/<name>: twin.json, the URDF, a generated artefact or a file of the scene."""
+        known = self._files.get(name)
+        if known is not None:
+            return known[0](), known[1]
+        asset = self.scene_assets.named(name)
+        if asset is None:
+            raise NotFound(f"{self.name} has no file {name!r}")
+        return asset.read(), asset.media_type
 
     def _scene_bodies(self) -> list[dict[str, Any]]:
         return msgspec.to_builtins(self.twin.scene.bodies)
@@ -326,4 +336,5 @@ class RobotThing:
             return workspace, None
 
     def _scene_changed(self, version: int) -> None:
+        self.scene_assets.add(self._scene_bodies())  # served from now on, named in twin.json
         self.thing.emit_event(TWIN_CHANGED, {"robot": self.name, "version": version})

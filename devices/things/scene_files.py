@@ -95,6 +95,11 @@ class SceneAssets:
         with self._lock:
             return list(self._by_path.values())
 
+    def named(self, name: str) -> SceneAsset | None:
+        """The file served as `name`, if any."""
+        with self._lock:
+            return next((a for a in self._by_path.values() if a.name == name), None)
+
     def links(self, bodies: Iterable[Mapping[str, Any]]) -> list[Link]:
         """The TD links to the files `bodies` name (in their order, each once)."""
         names, seen, links = self.names(), set(), []

@@ -105,8 +105,9 @@ def world_td(scene: SimulatedScene, version: int = 0, assets: Sequence[Link] = (
             "joints per robot (rad or m), bodies: cubes and robot bases ([[x,y,z],[qx,qy,qz,qw]], m, scene frame; "
             "the Dobot's base moves along its track), states per device. Files: scene.json (the scene "
             "description), the robots' URDFs (links rel=describedby, anchored at each robot's Thing)."
-            + (" Box obstacles can be added and removed (addObstacle, removeObstacle); the robots then check "
-               "their moves against them at once and their workspaces and TDs are regenerated; this TD is "
+            + (" Obstacles (boxes, CAD meshes, scans) can be added and removed (addObstacle, removeObstacle); the "
+               "files of mesh and scan obstacles are served beside scene.json (links rel scene-asset); the robots "
+               "then check their moves against them at once and their workspaces and TDs are regenerated; this TD is "
                "re-published with a new version so that observers reload scene.json." if takes_obstacles else "")),
         "properties": {
             POSES_PROPERTY: {
@@ -146,11 +147,13 @@ def world_td(scene: SimulatedScene, version: int = 0, assets: Sequence[Link] = (
     }
     if takes_obstacles:
         td["properties"]["obstacles"] = {
-            "title": "Obstacles", "description": "The box obstacles added to the scene, in the order added.",
+            "title": "Obstacles", "description": "The obstacles added to the scene, in the order added.",
             "type": "array", "items": OBSTACLE_SCHEMA, "readOnly": True, "observable": True}
         td["actions"]["addObstacle"] = {
-            "title": "Add a box obstacle", "description": "A static box in the scene frame (m, yaw in deg). Refused "
-            "(422) if the name is taken or the box would enclose a robot where it stands now.",
+            "title": "Add an obstacle", "description": "A static box in the scene frame (m, yaw in deg), or a CAD mesh "
+            "or a scan from a file on the lab's host (`type` mesh or points, `position`/`rpy` its pose, a scan's its "
+            "sensor's). Refused (422) if the name is taken (a scan replaces the scan of its name), the file cannot "
+            "be used, or the obstacle would touch a robot where it stands now.",
             "input": OBSTACLE_SCHEMA, "safe": False, "idempotent": False, "synchronous": True}
         td["actions"]["removeObstacle"] = {
             "title": "Remove an obstacle", "description": "Removes the obstacle of that name (422 if there is none).",
@@ -311,7 +314,7 @@ class WorldThing:
             return self._scene_json, "application/json"
         if name in urdfs:
             return urdfs[name], URDF_TYPE
-        asset = next((a for a in self.assets.assets() if a.name == name), None)
+        asset = self.assets.named(name)
         if asset is None:
             raise NotFound(f"{WORLD_THING} has no file {name!r}")
         return asset.read(), asset.media_type

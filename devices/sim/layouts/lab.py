@@ -15,8 +15,9 @@ from above, with x to the right and y up:
   enough to be seen over the platform) that gives their colour sensors something to find;
 - the room: a floor and four walls.
 
-Box obstacles can be added while the lab runs (`add_obstacle`): they are built into the world and
-added to the UR10's scene (`RobotTwin.set_scene`), whose workspace and TD are then regenerated.
+Obstacles (a box, a CAD mesh, a scan) can be added while the lab runs (`add_obstacle`): they are built into
+the world and added to the UR10's scene (`RobotTwin.set_scene`), whose workspace and TD then follow; a scan
+added again under its name replaces the previous one in one change (a depth camera's latest cloud).
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ import msgspec
 import pybullet as pb
 
 from devices.sim.bodies import box, pose
-from devices.sim.layouts.obstacles import Obstacle, build, scene_body
+from devices.sim.layouts.obstacles import Obstacle, build, described, scene_body
 from devices.sim.layouts.platform_layout import IotPlatform
 from devices.sim.pan_tilt import PAN_TILT_URDF, PanTilt
 from devices.sim.pybullet_world import DEFAULT_DT, Snapshot, World, body_pose, static_box
@@ -154,7 +155,7 @@ class IotLab:
         for lamp in self.lamps.values():
             shade = msgspec.structs.replace(box(c, f"{lamp.name}-shade", lamp.shade), color=OFF_RGB, shows=lamp.name)
             bodies += [box(c, f"{lamp.name}-post", lamp.post), shade]
-        bodies += [box(c, o.body_name, body) for o, body in self._obstacles.values()]
+        bodies += [box(c, o.body_name, body) if o.type == "box" else described(o) for o, body in self._obstacles.values()]
         urdfs = self.robot_urdfs()
         robots = [RobotModel(name="ur10", urdf="ur10.urdf", base=self.ur10.base.pose(),
                              urdf_dir=str(urdfs["ur10"].resolve().parent))]
@@ -205,15 +206,23 @@ class IotLab:
         return Surroundings(name=self._base_scene.name, description=self._base_scene.description, bodies=bodies)
 
     def add_obstacle(self, obstacle: Obstacle) -> None:
-        """Build the box into the world and the UR10's scene; refused if the name is taken or it hits the UR10."""
+        """Build the obstacle into the world and the UR10's scene; refused if the name is taken (but by a scan,
+        which a scan replaces) or it hits the UR10."""
         with self._lock:
-            if obstacle.name in self._obstacles:
+            before = self._obstacles.get(obstacle.name)
+            if before is not None and not (before[0].type == obstacle.type == "points"):
                 raise Refused(f"there is already an obstacle named {obstacle.name!r}; remove it first",
                               reason="obstacle-exists")
             if self.ur10.would_touch([scene_body(obstacle)]):
                 raise Refused(f"obstacle {obstacle.name!r} would hit the ur10 where it stands; move the robot "
-                              "away first or put the box elsewhere", reason="obstacle-hits-robot")
-            body = self.world.run(lambda: build(self.world.client, obstacle))
+                              "away first or put it elsewhere", reason="obstacle-hits-robot")
+
+            def swap() -> int:
+                if before is not None:
+                    pb.removeBody(before[1], physicsClientId=self.world.client)
+                return build(self.world.client, obstacle)
+
+            body = self.world.run(swap)
             self._obstacles[obstacle.name] = (obstacle, body)
             self._names = None
             self.ur10.set_scene(self.robot_scene())
