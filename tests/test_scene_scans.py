@@ -14,7 +14,7 @@ from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.fast_collision import FastCollision
 from tdgen.robot.model import Robot
 from tdgen.robot.scan_io import read_cloud
-from tdgen.robot.surroundings import BoxBody, PointsBody, SceneError, Surroundings, load_scene
+from tdgen.robot.surroundings import BoxBody, PointsBody, SceneError, Surroundings, build_into, load_scene
 from tests.scans import Truth, render_scan, write_pcd, write_ply, write_xyz
 
 TABLE = {"type": "box", "name": "table", "size": [0.6, 0.6, 0.6], "position": [0.0, 0.0, 0.3]}  # known, not scanned
@@ -162,3 +162,32 @@ def test_merged_boxes_cover_exactly_the_occupied_voxels():
     assert len(covered) == len(set(covered)) == len(cells)  # no voxel twice
     assert set(covered) == {tuple(c) for c in cells}
     assert len(lo) < len(cells) - 20  # the 6 x 5 slab is a few boxes, not 30
+
+
+def test_a_body_made_where_a_scan_was_removed_is_itself_to_the_fast_model(tmp_path):
+    """pybullet gives a removed body's id to the next one made: a shelf of as many parts as the scan had, made
+    there, is its own boxes to the fast model, not the scan's."""
+    import pybullet as pb
+
+    from tdgen.robot.spheres import scene_elements
+
+    (tmp_path / "a.xyz").write_text("".join(f"{x / 10} {y / 10} 1.0\n" for x in range(10) for y in range(10)))
+    client = pb.connect(pb.DIRECT)
+    try:
+        scan = build_into(load_scene(_scene(tmp_path, "a.xyz")), client)[0]
+        assert len(scene_elements(pb, client, scan)) > 1  # the scan's boxes
+        links = pb.getNumJoints(scan, physicsClientId=client)
+        pb.removeBody(scan, physicsClientId=client)
+        part = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[0.1, 0.1, 0.1], physicsClientId=client)
+        shelf = pb.createMultiBody(0.0, part, -1, [5.0, 0.0, 0.0], linkMasses=[0.0] * links,
+                                   linkCollisionShapeIndices=[part] * links, linkVisualShapeIndices=[-1] * links,
+                                   linkPositions=[[0.0, 0.0, 0.3 * (k + 1)] for k in range(links)],
+                                   linkOrientations=[[0, 0, 0, 1]] * links, linkInertialFramePositions=[[0, 0, 0]] * links,
+                                   linkInertialFrameOrientations=[[0, 0, 0, 1]] * links, linkParentIndices=[0] * links,
+                                   linkJointTypes=[pb.JOINT_FIXED] * links, linkJointAxis=[[0, 0, 1]] * links,
+                                   physicsClientId=client)
+        assert shelf == scan  # the id given again (else this test shows nothing)
+        corners = np.vstack([e.points for e in scene_elements(pb, client, shelf)])
+        assert np.allclose(corners[:, :2].mean(axis=0), [5.0, 0.0], atol=1e-6)  # the shelf's, at x = 5 m
+    finally:
+        pb.disconnect(client)

@@ -84,14 +84,13 @@ class CollisionWorld:
         held: dict[bytes, list[int]] = {}
         for body, i in zip(self.scene.bodies, self._ids):
             held.setdefault(msgspec.json.encode(body), []).append(i)
-        ids = []
-        for body in bodies:
-            kept = held.get(msgspec.json.encode(body))
-            ids.append(kept.pop() if kept else build_into(msgspec.structs.replace(self.scene, bodies=[body]),
-                                                          self.client)[0])
-        for gone in held.values():
+        wanted = [msgspec.json.encode(body) for body in bodies]
+        kept = [held[key].pop() if held.get(key) else None for key in wanted]
+        for gone in held.values():  # first: a scan replacing a scan is not quieted against it (`build_into`)
             for i in gone:
                 self._pb.removeBody(i, physicsClientId=self.client)
+        ids = [i if i is not None else build_into(msgspec.structs.replace(self.scene, bodies=[body]), self.client)[0]
+               for body, i in zip(bodies, kept)]
         self.scene = msgspec.structs.replace(self.scene, bodies=list(bodies))
         self._ids, self._scene_names = ids, _names(ids, self.scene)
         self._allowed_bodies = self._allowed_body_pairs(ids, self.part)

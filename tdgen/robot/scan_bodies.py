@@ -48,6 +48,7 @@ class Prepared:
     boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3)))  # voxels: the padded boxes (low, high)
     seconds: float = 0.0  # to read and prepare (or take from the cache)
     cached: bool = False
+    key: str = ""  # its cache key: what a body built from it is marked with (`build`)
 
 
 def cache_dir() -> Path:
@@ -94,6 +95,7 @@ def _prepared(path: Path, params: tuple, make) -> Prepared:
     else:
         prepared.cached = True
     prepared.seconds = time.perf_counter() - start
+    prepared.key = key
     _MEMORY[key] = prepared
     return prepared
 
@@ -254,19 +256,23 @@ def decompose(mesh) -> list[np.ndarray]:
     return hulls
 
 
-_BUILT: dict[tuple[int, int], tuple[int, Prepared]] = {}  # (client, body) -> (links, what it was built from)
+BUILT_FROM = "twinmesh-built-from"  # a built body's pybullet user data: the key of what it was built from
+_BUILT: dict[str, Prepared] = {}  # by that key
 
 
 def boxes_of(pb, client: int, body: int) -> np.ndarray | None:
     """The padded boxes (B, 2, 3), scene frame, of a scan body built here, else None: what the fast
-    model can take for it instead of the box around each group of faces."""
-    held = _BUILT.get((client, body))
+    model can take for it instead of the box around each group of faces. Known by the body's own mark,
+    which goes with it: pybullet gives a removed body's id to the next one made."""
     try:
-        if held is None or pb.getNumJoints(body, physicsClientId=client) != held[0] or held[1].kind != "voxels":
+        mark = pb.getUserDataId(body, BUILT_FROM, physicsClientId=client)
+        if mark < 0:
             return None
+        key = pb.getUserData(mark, physicsClientId=client)
     except pb.error:  # a client since closed
         return None
-    return held[1].boxes
+    held = _BUILT.get(key.decode() if isinstance(key, bytes) else str(key))
+    return held.boxes if held is not None and held.kind == "voxels" else None
 
 
 def fast_elements(pb, client: int, body: int) -> list[tuple[np.ndarray, np.ndarray]] | None:
@@ -324,5 +330,7 @@ def build(prepared: Prepared, position, orientation, client: int) -> int:
                               linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n, linkParentIndices=[0] * n,
                               linkJointTypes=[pb.JOINT_FIXED] * n, linkJointAxis=[[0.0, 0.0, 1.0]] * n,
                               physicsClientId=client)
-    _BUILT[(client, body)] = (n, prepared)
+    key = prepared.key or f"unkept-{id(prepared)}"
+    _BUILT[key] = prepared
+    pb.addUserData(body, BUILT_FROM, key, physicsClientId=client)
     return body
