@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import msgspec
 import numpy as np
@@ -23,6 +24,9 @@ from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.model import Robot
 from tdgen.robot.surroundings import Body, Surroundings
 from tdgen.sampling import Samples, random_configurations
+
+if TYPE_CHECKING:
+    from tdgen.robot.fast_collision import FastCollision
 
 
 class NeedsGeneration(ValueError):
@@ -61,12 +65,26 @@ class Worlds:
         self._base: CollisionWorld | None = None
         self._base_pairs: dict[int, list[str]] = {}
         self._at_rest: list[str] | None = None
+        self._part_model: tuple[bytes, FastCollision] | None = None  # the part world's, for the bodies it holds
 
     def part(self, bodies: list[Body]) -> CollisionWorld:
         if self._part is None:
             self._part = CollisionWorld(self.robot, msgspec.structs.replace(self.base, bodies=[]), part=True)
         self._part.set_bodies(bodies)
         return self._part
+
+    def touching(self, bodies: list[Body], q: np.ndarray, model: str = "fast") -> np.ndarray:
+        """`touching` in the part world holding `bodies`, its fast model kept while it holds them: an update
+        asks it for the samples and again for its warnings (a scan's model is thousands of pieces)."""
+        world = self.part(bodies)
+        if model == "exact" or not len(q) or not bodies:
+            return touching(world, q, model)
+        held = msgspec.json.encode(bodies)
+        if self._part_model is None or self._part_model[0] != held:
+            from tdgen.robot.fast_collision import FastCollision
+
+            self._part_model = (held, FastCollision(world))
+        return self._part_model[1].colliding(q)
 
     def whole(self, scene: Surroundings) -> CollisionWorld:
         if self._whole is None:
@@ -95,6 +113,7 @@ class Worlds:
             if world is not None:
                 world.close()
         self._part = self._whole = self._base = None
+        self._part_model = None
 
 
 def touching(world: CollisionWorld, q: np.ndarray, model: str = "fast") -> np.ndarray:
@@ -160,7 +179,7 @@ class LiveSamples:
             if key in self.touches:
                 touches[key] = self.touches[key]
                 continue
-            hit = touching(self.worlds.part([body]), self.base_samples.q[base_free], self.model)
+            hit = self.worlds.touching([body], self.base_samples.q[base_free], self.model)
             touches[key] = base_free[hit]
             checked += len(base_free)
         live = LiveSamples(self.robot, self.base, self.base_samples, self.base_flags, self.model, scene, touches,
@@ -182,7 +201,7 @@ class LiveSamples:
         kept, stale = rows[before], rows[~before]
         added = changed_bodies(self.base, self.scene)[1]
         if added and len(kept):
-            hit = touching(self.worlds.part(added), q[kept], self.model)
+            hit = self.worlds.touching(added, q[kept], self.model)
             kept, stale = kept[~hit], np.concatenate([stale, kept[hit]])
         found = {int(i): self.worlds.base_pairs(int(i), q[i]) for i in kept}
         if len(stale):
