@@ -136,6 +136,39 @@ def run_client(td_url: str, steps: list[dict], timeout: float = 60, credentials:
     return results
 
 
+def run_clients(things: list[tuple[str, list[dict]]], timeout: float = 300, parallel: int = 8,
+                credentials: dict | None = None) -> list[list[dict] | HarnessError]:
+    """`run_client` for several Things at once, from one node process (node-wot loads once; `parallel`
+    Things are driven at a time): for each (TD URL, steps), its results, or the HarnessError (a
+    TDConsumeError when node-wot could not consume its TD) that `run_client` would have raised."""
+    ensure_node_modules()
+    command = [_node(), str(CLIENT), "--many", "-", "--parallel", str(parallel), *_credential_args(credentials)]
+    script = json.dumps([{"url": url, "steps": steps} for url, steps in things])
+    try:
+        done = subprocess.run(command, cwd=INTEROP_DIR, input=script, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired as e:
+        stderr = e.stderr.decode(errors="replace") if isinstance(e.stderr, bytes) else e.stderr or ""
+        raise HarnessError(f"wot-client.mjs --many ran more than {timeout} s\n--- stderr ---\n{_tail(stderr)}") from None
+    stderr = _tail(done.stderr)
+    if done.returncode != 0:
+        raise HarnessError(f"wot-client.mjs --many exited {done.returncode}\n--- stdout ---\n{done.stdout[-4000:]}"
+                           f"--- stderr ---\n{stderr}")
+    lines: list[list[dict]] = [[] for _ in things]
+    for line in done.stdout.splitlines():
+        if line.strip():
+            entry = json.loads(line)
+            lines[entry.pop("thing")].append(entry)
+    out: list[list[dict] | HarnessError] = []
+    for (url, steps), got in zip(things, lines):
+        if got and got[0].get("op") == "consume" and not got[0].get("ok"):
+            out.append(TDConsumeError(got[0].get("error", "?"), stderr))
+        elif [r.get("i") for r in got[1:]] != list(range(len(steps))):
+            out.append(HarnessError(f"{url}: {len(got[1:])} of {len(steps)} results\n--- stderr ---\n{stderr}"))
+        else:
+            out.append(got[1:])
+    return out
+
+
 def playground(documents: list[dict], timeout: float = 300) -> list[dict]:
     """The Thingweb TD Playground on each {"name", "kind": "td" | "tm", "document"}: one result per
     document, {"name", "report", "details", "failed" (assertion ids), "counts", "log"} (td-playground.cjs)."""

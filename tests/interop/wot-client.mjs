@@ -2,6 +2,11 @@
 // node-wot 0.9.2 as a scripted WoT consumer, driven by the Python interop tests (see npm.py).
 //
 //   node wot-client.mjs <TD URL> <script.json | -> [--basic user:password] [--bearer token]
+//   node wot-client.mjs --many <scripts.json | -> [--basic user:password] [--bearer token]
+//
+// --many drives several Things from one servient (node-wot loads once), up to --parallel (default 8) at
+// a time: the input is a JSON list of {"url": TD URL, "steps": [...]}, and every output line carries
+// "thing": the index of its entry in that list, so one Thing's lines read as a single run's.
 //
 // The script is a JSON list of steps, run in order. stdout carries JSON lines only: first
 // {"op":"consume", ...} for fetching and consuming the TD, then one line per step:
@@ -69,12 +74,16 @@ async function within(ms, promise, what) {
 function parseCli() {
     const { values, positionals } = parseArgs({
         allowPositionals: true,
-        options: { basic: { type: "string" }, bearer: { type: "string" } },
+        options: {
+            basic: { type: "string" }, bearer: { type: "string" }, many: { type: "boolean" },
+            parallel: { type: "string", default: "8" },
+        },
     });
-    if (positionals.length !== 2) {
-        throw new HarnessError("usage: node wot-client.mjs <TD URL> <script.json | -> [--basic user:password] [--bearer token]");
+    if (positionals.length !== (values.many ? 1 : 2)) {
+        throw new HarnessError("usage: node wot-client.mjs <TD URL> <script.json | -> | --many <scripts.json | -> "
+            + "[--parallel N] [--basic user:password] [--bearer token]");
     }
-    const [tdUrl, scriptPath] = positionals;
+    const [tdUrl, scriptPath] = values.many ? [null, positionals[0]] : positionals;
     let credentials;
     if (values.basic !== undefined) {
         const colon = values.basic.indexOf(":");
@@ -83,14 +92,21 @@ function parseCli() {
     } else if (values.bearer !== undefined) {
         credentials = { token: values.bearer };
     }
-    let steps;
+    let script;
     try {
-        steps = JSON.parse(readFileSync(scriptPath === "-" ? 0 : scriptPath, "utf8"));
+        script = JSON.parse(readFileSync(scriptPath === "-" ? 0 : scriptPath, "utf8"));
     } catch (e) {
         throw new HarnessError(`cannot read the script ${scriptPath}: ${e.message}`);
     }
-    checkSteps(steps);
-    return { tdUrl, credentials, steps };
+    const things = values.many ? script : [{ url: tdUrl, steps: script }];
+    if (!Array.isArray(things)) throw new HarnessError("--many wants a JSON list of {url, steps}");
+    for (const thing of things) {
+        if (thing === null || typeof thing.url !== "string") throw new HarnessError("each entry of --many needs a url");
+        checkSteps(thing.steps);
+    }
+    const parallel = Number.parseInt(values.parallel, 10);
+    if (!(parallel >= 1)) throw new HarnessError("--parallel wants a whole number of at least 1");
+    return { many: Boolean(values.many), credentials, things, parallel };
 }
 
 function checkSteps(steps) {
@@ -281,14 +297,8 @@ class Runner {
     }
 }
 
-async function main() {
-    const { tdUrl, credentials, steps } = parseCli();
-    const { Servient } = await import("@node-wot/core");
-    const { HttpClientFactory } = (await import("@node-wot/binding-http")).default;
-    const servient = new Servient();
-    servient.addClientFactory(new HttpClientFactory());
-    const wot = await servient.start();
-
+// One Thing: consume its TD, run its steps in order; `say` writes its lines. 0, or 2 if it could not be consumed.
+async function drive(wot, servient, credentials, tdUrl, steps, say) {
     let runner;
     try {
         const td = tdUrl.startsWith("file:")  // a TD written to disk (twinmesh tdgen), as a file:// URL
@@ -297,9 +307,9 @@ async function main() {
         if (credentials) servient.addCredentials({ [td.id]: credentials });
         runner = new Runner(wot, td);
         await runner.consume();
-        emit({ op: "consume", ok: true, id: td.id, title: td.title });
+        say({ op: "consume", ok: true, id: td.id, title: td.title });
     } catch (e) {
-        emit({ op: "consume", ...errorResult(e) });
+        say({ op: "consume", ...errorResult(e) });
         return 2;
     }
 
@@ -310,11 +320,36 @@ async function main() {
         } catch (e) {
             result = errorResult(e);
         }
-        emit({ i, op: step.op, ...(step.id !== undefined && { id: step.id }), ...result });
+        say({ i, op: step.op, ...(step.id !== undefined && { id: step.id }), ...result });
     }
     await runner.close();
-    await servient.shutdown();
     return 0;
+}
+
+async function main() {
+    const { many, credentials, things, parallel } = parseCli();
+    const { Servient } = await import("@node-wot/core");
+    const { HttpClientFactory } = (await import("@node-wot/binding-http")).default;
+    const servient = new Servient();
+    servient.addClientFactory(new HttpClientFactory());
+    const wot = await servient.start();
+
+    let code = 0;
+    if (!many) {
+        code = await drive(wot, servient, credentials, things[0].url, things[0].steps, emit);
+    } else {
+        let next = 0;
+        const worker = async () => {
+            while (next < things.length) {
+                const k = next++;
+                await drive(wot, servient, credentials, things[k].url, things[k].steps,
+                    (line) => emit({ thing: k, ...line }));
+            }
+        };
+        await Promise.all(Array.from({ length: Math.min(parallel, things.length) }, worker));
+    }
+    await servient.shutdown();
+    return code;
 }
 
 process.on("unhandledRejection", (e) => console.error("wot-client: unhandled rejection:", e));
