@@ -124,6 +124,16 @@ def test_td_that_cannot_be_fetched(baseline):
     assert caught.value.message == "Client error: Not Found"
 
 
+def test_several_things_from_one_process_each_get_their_own_results(td_url, baseline):
+    missing = baseline.td_url().replace("light-left", "no-such-thing")
+    steps = [{"op": "writeProperty", "name": "lightState", "value": True}, {"op": "readProperty", "name": "lightState"}]
+    read = [{"op": "readProperty", "name": "lightColor"}]
+    written, failed, colour = npm.run_clients([(td_url, steps), (missing, read), (td_url, read)], parallel=2)
+    assert [r["ok"] for r in written] == [True, True] and written[1]["value"] is True
+    assert isinstance(failed, npm.TDConsumeError) and failed.message == "Client error: Not Found"
+    assert colour == [{"i": 0, "op": "readProperty", "ok": True, "value": [1, 1, 1]}]
+
+
 def test_bad_script_is_a_harness_failure(td_url):
     with pytest.raises(npm.HarnessError, match="op must be one of"):
         npm.run_client(td_url, [{"op": "teleport"}])
