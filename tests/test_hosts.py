@@ -1,8 +1,8 @@
 """One lab across hosts: Linux network namespaces joined by a bridge, a lab on the first, `up --join` on others.
 
-Each host runs its own router (`up SCENE --join ENDPOINT` links it to the lab's), as Zenoh is
-deployed: one router per host, the routers connected. Skipped, with the reason, where network
-namespaces cannot be created (they need root).
+Each joining host runs a gateway (`up SCENE --join ENDPOINT`): one client of the lab's router for the
+whole host, the host's devices a region south of it (Zenoh's regions). Skipped, with the reason, where
+network namespaces cannot be created (they need root).
 """
 from __future__ import annotations
 
@@ -90,10 +90,10 @@ def test_a_second_host_joins_a_lab_its_things_are_driven_from_the_first_and_a_cu
         assert httpx.get(f"{base}/light-left/properties/lightState", timeout=10).json() is True
         joints = httpx.get(f"{base}/ur10/properties/getJointposition", timeout=10)
         assert joints.status_code == 200, joints.text
-        # no second router, adapter or tdgen on B: one router, the lights
+        # no router, adapter or tdgen on B: its gateway, the lights
         ps = b.run(["ps", "-o", "args=", "--ppid", str(joined.pid)]).stdout
         titles = sorted(line.split(":", 1)[1].strip().split()[0] for line in ps.splitlines() if line.startswith("twinmesh:"))
-        assert titles == ["lights", "router"], ps
+        assert titles == ["gateway", "lights"], ps
 
         net.cut(b)
         cut, gone, robot_gone, own = time.monotonic(), None, None, []
@@ -120,10 +120,10 @@ def test_a_second_host_joins_a_lab_its_things_are_driven_from_the_first_and_a_cu
               f"after {back:.2f} s (the robot: {back + robot_back:.2f} s)")
 
 
-@pytest.mark.parametrize("direct", [False, True], ids=["a-router-per-host", "direct"])
+@pytest.mark.parametrize("direct", [False, True], ids=["a-gateway-per-host", "direct"])
 def test_four_hosts_make_one_fleet_that_joins_and_leaves_cleanly(tmp_path, direct):
-    """Each joining host with its router linked to the lab's, or (`--direct`) none: its devices are
-    clients of the lab's router."""
+    """Each joining host with its gateway, a client of the lab's router, or (`--direct`) none: its devices
+    are clients of the lab's router."""
     per_host = 50
     with netns.hosts(4) as net:
         first, *others = net.hosts
@@ -140,7 +140,7 @@ def test_four_hosts_make_one_fleet_that_joins_and_leaves_cleanly(tmp_path, direc
             _ready(log, "a joining fleet")
             assert ("linked straight to the lab's router" in log.read_text()) == direct
         ps = others[0].run(["ps", "-o", "args=", "--ppid", str(procs[0].pid)]).stdout
-        assert ("twinmesh: router" in ps) != direct, ps
+        assert ("twinmesh: gateway" in ps) != direct, ps
         everyone = {n for i in range(4) for n in fleet_names(per_host, 1 + i * per_host // 5)}
         assert len(everyone) == 4 * per_host
         try:

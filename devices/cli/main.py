@@ -210,12 +210,11 @@ def _ready_timeout(things: list[str]) -> float:
                    "that joins a lab its own range.")
 @click.option("--join", "join", metavar="ENDPOINT",
               help="Run only the scene's devices, for the lab whose router listens at ENDPOINT (another host's "
-                   "`twinmesh --listen tcp/0.0.0.0:7447 up`): this host's router links to it; no adapter, "
+                   "`twinmesh --listen tcp/0.0.0.0:7447 up`): this host's gateway links to it; no adapter, "
                    "tdgen, recorder or view here.")
 @click.option("--direct", is_flag=True,
-              help="With --join: no router on this host; each device links straight to the lab's router "
-                   "(for fleets of thousands: routers linked together each hold every device's keys). A cut "
-                   "cable is then seen after 60 s instead of 1.5 s.")
+              help="With --join: no gateway on this host; each device links straight to the lab's router "
+                   "(its router then holds a link per device). A cut cable is then seen after 60 s instead of 1.5 s.")
 @click.option("--real", "real", multiple=True, metavar="DEVICE=URL",
               help="Guard the real DEVICE whose TD is at URL with its twin (repeatable; iot-platform and iot-lab): "
                    "every action is checked on the twin first and only then sent to the real device; the real "
@@ -499,9 +498,10 @@ def _prepare_secrets(settings: MeshSettings, things: list[str], joining: bool) -
 
 def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], things: list[str], join: str,
               direct: bool = False) -> None:
-    """`up SCENE --join ENDPOINT`: this host's router (listening where this host's devices connect) linked
-    to the lab's router at ENDPOINT, and the scene's devices; ready once the lab sees them all. `direct`:
-    no router here, the devices are clients of the lab's router."""
+    """`up SCENE --join ENDPOINT`: this host's gateway (listening where this host's devices connect; one client
+    of the lab's router at ENDPOINT, its devices a region south of it: `MeshSettings.as_gateway`), and the
+    scene's devices; ready once the lab sees them all. `direct`: no gateway here, the devices are clients of
+    the lab's router."""
     from devices.lab.readiness import PortTaken, free_or_problem
 
     lab = msgspec.structs.replace(settings, listen=(), connect=(join,))
@@ -514,15 +514,15 @@ def _join_lab(settings: MeshSettings, scene: str, specs: list[ProcessSpec], thin
             free_or_problem(listen, None)
         except PortTaken as e:
             raise click.ClickException(e.detail) from None
-        router = ProcessSpec("router", entries.router,
-                             {"listen": listen, "connect": [join]}, role=f"router (joins {join})")
+        router = ProcessSpec("router", entries.router, {"listen": listen, "connect": [join], "gateway": True},
+                             role=f"gateway (joins {join})")
         sup = Supervisor(msgspec.structs.replace(settings, listen=()), [router, *specs])
     set_title(f"up {scene} --join {join}")
     sup.start()
     _until_ready(sup, lab, things, max(JOIN_READY_TIMEOUT, _ready_timeout(things)), follow=False,
                  died="while joining the lab (its log is above); stopped",
                  failed=f" (is the lab at {join} running and listening there?); stopped")
-    where = f"this host's router on {', '.join(listen)}" if listen else "linked straight to the lab's router"
+    where = f"this host's gateway on {', '.join(listen)}" if listen else "linked straight to the lab's router"
     click.echo(f"twinmesh '{scene}' joined the lab at {join}, ready: {len(things)} Things, {where}  (Ctrl-C to stop)")
     sys.exit(sup.run_until_stopped())
 

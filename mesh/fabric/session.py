@@ -79,9 +79,10 @@ def is_connected(session) -> bool:
 
 
 def run_router_process(settings: MeshSettings, stop: threading.Event, listen: Sequence[str] = (),
-                       connect: Sequence[str] = ()) -> None:
+                       connect: Sequence[str] = (), gateway: bool = False) -> None:
     """Process entry for the lab's router: it listens where the lab's peers connect, and links to the
-    routers at `connect` (another host's lab, for `up --join`).
+    routers at `connect` (another host's lab, for `up --join`). `gateway`: this host's gateway instead,
+    a client of the lab's router at `connect` whose own clients are its south region (`as_gateway`).
 
     A router that cannot listen (the port was taken after `up` checked it) logs one line and
     exits with code 1, so the supervisor stops the lab instead of leaving it without a router. Once
@@ -90,7 +91,8 @@ def run_router_process(settings: MeshSettings, stop: threading.Event, listen: Se
     os.environ.setdefault("ZENOH_RUNTIME", ROUTER_RUNTIME)  # read once, when Zenoh's runtime starts
     import zenoh
 
-    router = settings.as_router(tuple(listen) or None, tuple(connect))
+    router = (settings.as_gateway(tuple(listen), tuple(connect)) if gateway
+              else settings.as_router(tuple(listen) or None, tuple(connect)))
     while True:
         devices = _devices(router)
         with ExitStack() as stack:

@@ -67,6 +67,7 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
     wait_for_router: bool = True
     secrets: str | None = None
     crosses_hosts: bool = False  # its link goes to another host's router: announce the short lease
+    gateway: bool = False  # a joining host's gateway: a client of the lab's router, this host's clients its south
     role: str = "consumer"
     query_timeout: float = 5.0   # reads, writes, TDs
     action_timeout: float = 300.0  # motions return when done, which can take minutes at speed 1
@@ -99,8 +100,10 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
         if self.mode == "client" and self.wait_for_router:
             conf.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": OPEN_ATTEMPT_MS}))
             conf.insert_json5("connect/exit_on_failure", json.dumps({"router": False, "peer": False, "client": True}))
-        if self.mode == "router":
+        if self.mode == "router" or self.gateway:
             conf.insert_json5("transport/unicast/max_sessions", json.dumps(ROUTER_MAX_SESSIONS))
+        if self.gateway:
+            conf.insert_json5("gateway", json.dumps({"south": [{"filters": [{"modes": ["client", "peer"]}]}]}))
         for path, value in self.overrides:
             conf.insert_json5(path, value)
         return conf
@@ -110,6 +113,15 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
         routers at `connect`: one router per host, the routers connected)."""
         return msgspec.structs.replace(self, mode="router", listen=listen or self.connect, connect=connect,
                                        role="router")
+
+    def as_gateway(self, listen: tuple[str, ...], lab: tuple[str, ...]) -> "MeshSettings":
+        """The settings of a joining host's gateway (Zenoh's regions): one client of the lab's router at `lab`
+        for the whole host, its own clients (the host's devices, at `listen`) a region south of it. The
+        lab's router then holds one link per host, not one per device: a Zenoh router does work in
+        proportion to the links it holds for every link that opens or closes, and routers linked to
+        routers each hold every key of the others."""
+        return msgspec.structs.replace(self, mode="client", listen=listen, connect=lab, role="router",
+                                       crosses_hosts=True, gateway=True)
 
     @property
     def endpoints(self) -> tuple[str, ...]:
@@ -133,7 +145,7 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
             "verify_name_on_connect": False,  # the lab's own CA is the trust: hosts are reached by any address
             "listen_certificate": str(cert), "listen_private_key": str(key),
             "connect_certificate": str(cert), "connect_private_key": str(key)}))
-        if self.mode == "router":
+        if self.mode == "router" or self.gateway:
             conf.insert_json5("access_control", json.dumps(access_control(self.prefix, secrets.devices())))
 
 
