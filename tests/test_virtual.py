@@ -21,7 +21,8 @@ import httpx
 import pytest
 from interop import npm
 from jsonschema import Draft7Validator
-from labs import start_lab
+from labs import mesh_client, start_lab
+from waiting import subscribed
 
 from mesh.wot.problem import BadInput
 from mesh.wot.schema_values import SchemaValues
@@ -195,7 +196,9 @@ def test_writes_are_kept_and_observers_see_them(lab, served):
     observer = subprocess.Popen(lab.cli_args("observe", name, prop, "--count", "1"), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
     try:
-        time.sleep(2)
+        assert "waiting for changes" in observer.stderr.readline()  # its subscriber declared...
+        with mesh_client(lab.endpoint) as mesh:  # ...and known to the lab's router, which passes changes on
+            subscribed(mesh.session, mesh.keys.property(name, prop))
         assert httpx.put(f"{lab.http}/{name}/properties/{prop}", json=second, timeout=30).status_code == 204
         out, err = observer.communicate(timeout=60)
     finally:
