@@ -229,6 +229,10 @@ def _ready_timeout(things: list[str]) -> float:
 @click.option("--thing", "virtual_things", multiple=True, metavar="NAME=TD",
               help="Add a virtual Thing served from the TD in a file or at an http(s) URL (repeatable; see "
                    "`twinmesh virtual`).")
+@click.option("--scans", type=click.Path(file_okay=False, exists=True), envvar="TWINMESH_SCANS", show_envvar=True,
+              metavar="DIR", help="The only folder the iot-lab's world takes the files of mesh and scan obstacles "
+              "from (addObstacle; relative paths are relative to it), since it then serves them to anyone who may "
+              "read it [default: $XDG_DATA_HOME/twinmesh/scans, else ~/.local/share/twinmesh/scans].")
 @click.option("--outlive-parent", is_flag=True,
               help="Keep the lab running when the process that started `up` ends. Without it a lab started by a "
                    "script, a test or an editor stops when its starter dies, however it dies (a terminal's shell, "
@@ -238,7 +242,8 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
        auth: str | None, record: str | None, view: str, no_view: bool, speed: str, samples: int | None,
        tdgen_cache: str | None, tdgen_live: bool, fleet: int | None, fleet_first: int, join: str | None, direct: bool,
        real: tuple[str, ...], real_auth: str | None, real_ca: str | None, real_insecure: bool,
-       real_calibration: tuple[str, ...], virtual_things: tuple[str, ...], outlive_parent: bool) -> None:
+       real_calibration: tuple[str, ...], virtual_things: tuple[str, ...], scans: str | None,
+       outlive_parent: bool) -> None:
     """Start a lab: router, the TD generator, the scene's devices, the HTTP adapter (and the recorder).
 
     Scenes: iot-lab (default), iot-platform, ur10, lights, fleet (--fleet N virtual devices for load tests).
@@ -261,7 +266,7 @@ def up(settings: MeshSettings, scene: str | None, zenoh_endpoint: str | None, ht
     access = commands.remote_access(real_auth, real_ca, real_insecure) if real else None
     guarded = _guard_real(the_scene, real, access, real_calibration) if real else ()
     options = LabOptions(speed=speed_factor, samples=samples, fleet=fleet, fleet_first=fleet_first, real=guarded,
-                         access=access)
+                         access=access, scans=str(Path(scans).resolve()) if scans else None)
     specs, things = the_scene.processes(options), the_scene.things(options)
     things += [f"{d.slug}-real" for d in guarded]
     scene = the_scene.name

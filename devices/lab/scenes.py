@@ -36,6 +36,7 @@ class LabOptions:
     processes: int | None = None    # the fleet's processes (None: one per core)
     real: tuple[RealDevice, ...] = ()  # real devices guarded by their twins (`up --real`)
     access: Access | None = None    # how the real devices are reached
+    scans: str | None = None        # the folder the iot-lab's world takes obstacle files from (None: the default)
 
 
 @dataclass(frozen=True)
@@ -75,7 +76,8 @@ def _ur10(o: LabOptions) -> list[ProcessSpec]:
 def _iot_lab(o: LabOptions) -> list[ProcessSpec]:
     # the whole room: the iot-platform table, the ur10 behind its safety wall, lights and pan-tilts
     return [ProcessSpec("iot-lab", entries.iot_lab, {"speed": o.speed, "samples": o.samples or DEFAULT_SAMPLES,
-                                                     "real": o.real, "access": o.access}, role="world iot-lab")]
+                                                     "real": o.real, "access": o.access, "scans": o.scans},
+                        role="world iot-lab")]
 
 
 def _fleet(o: LabOptions) -> list[ProcessSpec]:

@@ -19,7 +19,8 @@ and a file `scene.json` (a `SceneDescription`), plus each robot's URDF as a file
   of every device's reach, as a lab assistant would (how a test or a class sets up an empty warehouse);
 - in a scene that takes obstacles (`ObstacleScene`: the iot-lab), `addObstacle` / `removeObstacle`
   change the scene under the robots and the observable `obstacles` lists them; the TD is then
-  re-published with a new `version` (how the recorder knows to reload scene.json);
+  re-published with a new `version` (how the recorder knows to reload scene.json). A mesh or scan obstacle's
+  file is taken only from the lab's scans folder (`scans`), since the world then serves it to its readers;
 - the files the scene's `mesh` and `points` bodies name (CAD meshes, scans) are served beside scene.json
   and linked from the TD (`rel` scene-asset); scene.json names each by the name it is served under,
   relative to scene.json (`devices.things.scene_files`), so a consumer that downloads them rebuilds the scene.
@@ -40,7 +41,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 import msgspec
 
 from devices.sim.bodies import pose as _pose
-from devices.sim.layouts.obstacles import OBSTACLE_SCHEMA, Obstacle
+from devices.sim.layouts.obstacles import OBSTACLE_SCHEMA, Obstacle, default_scans_dir
 from devices.sim.pybullet_world import MAX_SPEED, MIN_SPEED, Snapshot, World
 from devices.things.scene_files import SceneAssets
 from mesh.fabric.keys import Keys
@@ -151,9 +152,10 @@ def world_td(scene: SimulatedScene, version: int = 0, assets: Sequence[Link] = (
             "type": "array", "items": OBSTACLE_SCHEMA, "readOnly": True, "observable": True}
         td["actions"]["addObstacle"] = {
             "title": "Add an obstacle", "description": "A static box in the scene frame (m, yaw in deg), or a CAD mesh "
-            "or a scan from a file on the lab's host (`type` mesh or points, `position`/`rpy` its pose, a scan's its "
-            "sensor's). Refused (422) if the name is taken (a scan replaces the scan of its name), the file cannot "
-            "be used, or the obstacle would touch a robot where it stands now.",
+            "or a scan from a file in the lab's scans folder on its host (`type` mesh or points, `position`/`rpy` its "
+            "pose, a scan's its sensor's). Refused (422) if the name is taken (a scan replaces the scan of its name), "
+            "the file is outside the scans folder (file-outside-scans) or cannot be used, or the obstacle would touch "
+            "a robot where it stands now.",
             "input": OBSTACLE_SCHEMA, "safe": False, "idempotent": False, "synchronous": True}
         td["actions"]["removeObstacle"] = {
             "title": "Remove an obstacle", "description": "Removes the obstacle of that name (422 if there is none).",
@@ -257,8 +259,11 @@ class Throttle:
 class WorldThing:
     """The `world` Thing of a simulated scene; use as a context manager (exposes, then tears down)."""
 
-    def __init__(self, session, scene: SimulatedScene, keys: Keys | None = None, rate: float = POSES_RATE):
+    def __init__(self, session, scene: SimulatedScene, keys: Keys | None = None, rate: float = POSES_RATE,
+                 scans: Path | None = None):
+        """`scans`: the only folder mesh and scan obstacles are taken from (default: `default_scans_dir()`)."""
         self.scene, self.world = scene, scene.world
+        self.scans = scans if scans is not None else default_scans_dir()
         self.version = 0
         self._urdfs = {urdf_file(robot): path for robot, path in scene.robot_urdfs().items()}
         self.assets = SceneAssets(taken=[SCENE_FILE, *self._urdfs])
@@ -348,7 +353,7 @@ class WorldThing:
         from devices.sim.layouts.obstacles import from_input
 
         with self._changing:
-            self._obstacle_scene().add_obstacle(from_input(value))
+            self._obstacle_scene().add_obstacle(from_input(value, self.scans))
             self._scene_changed()
 
     def _remove_obstacle(self, value: dict) -> Obstacle:

@@ -6,15 +6,19 @@ handler runs), a static body in the pybullet world (`build`), and a body of the 
 scene (`scene_body`), so that the collision checks and the regenerated workspace see exactly the
 body the recorder draws. A `mesh` or `points` obstacle names a file on the lab's host (as a scene
 file's `mesh` and `points` bodies do, `tdgen.robot.surroundings`); the world serves it beside its
-scene.json.
+scene.json to anyone who may read the world. So the file is taken only from the lab's scans folder
+(`twinmesh up --scans DIR`): whoever may invoke `addObstacle` must not be able to make the lab read and
+serve any other file of its host.
 """
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import Any, Literal
 
 import msgspec
+import platformdirs
 import pybullet as pb
 
 from devices.sim.pybullet_world import static_box
@@ -25,6 +29,7 @@ from tdgen.robot.surroundings import BoxBody, MeshBody, PointsBody, SceneError, 
 
 PREFIX = "obstacle-"  # the body name of obstacle `name` in the scene: obstacle-<name>
 COLOR = (0.95, 0.45, 0.1)
+SCANS_ENV = "TWINMESH_SCANS"  # the default of `twinmesh up --scans`
 
 _VEC3 = {"type": "array", "minItems": 3, "maxItems": 3}
 OBSTACLE_SCHEMA: dict[str, Any] = {
@@ -36,8 +41,10 @@ OBSTACLE_SCHEMA: dict[str, Any] = {
         "size": {**_VEC3, "items": {"type": "number", "minimum": 0.01, "maximum": 3, "unit": units.METRE},
                  "description": "A box's full extents x, y, z (m)."},
         "file": {"type": "string", "minLength": 1, "maxLength": 1024, "description": "A mesh or points obstacle's "
-                 "file on the lab's host (STL, OBJ, PLY, glTF; PCD, PLY, XYZ), absolute or relative to the lab's "
-                 "working directory. Adding a scan again under its name replaces the previous one."},
+                 "file (STL, OBJ, PLY, glTF; PCD, PLY, XYZ) in the lab's scans folder (twinmesh up --scans DIR; "
+                 "default: the scans folder of the lab host's twinmesh data directory), relative to that folder or "
+                 "absolute inside it; any other file is refused (422, file-outside-scans). Adding a scan again "
+                 "under its name replaces the previous one."},
         "rpy": {**_VEC3, "items": {"type": "number", "minimum": -360, "maximum": 360, "unit": units.DEGREE},
                 "description": "A mesh or points obstacle's roll, pitch, yaw (fixed axes)."},
         "scale": {"type": "number", "exclusiveMinimum": 0, "maximum": 1000, "unit": units.UNITLESS,
@@ -70,9 +77,30 @@ class Obstacle(msgspec.Struct, kw_only=True, omit_defaults=True):
         return PREFIX + self.name
 
 
-def from_input(value: object) -> Obstacle:
+def default_scans_dir() -> Path:
+    """`$TWINMESH_SCANS`, else `scans` in the user's data directory (`$XDG_DATA_HOME/twinmesh/scans` on Linux,
+    beside the secrets): a folder that holds only what someone put there to share, never the folder a lab
+    happened to be started in (often a home directory)."""
+    folder = os.environ.get(SCANS_ENV)
+    return Path(folder) if folder else platformdirs.user_data_path("twinmesh") / "scans"
+
+
+def in_scans(file: str, scans: Path) -> Path:
+    """The real path of `file` (relative to `scans`, or absolute), refused unless it lies in `scans` once `..`
+    and every symbolic link are followed."""
+    folder = scans.resolve()
+    path = (folder / file).resolve()  # an absolute `file` stays itself
+    if not path.is_relative_to(folder):
+        shown = f"{file!r}" if str(path) == file else f"{file!r} ({path})"
+        raise Refused(f"file: {shown} is outside the lab's scans folder {folder}; only files in it are taken "
+                      "(twinmesh up --scans DIR chooses the folder)", reason="file-outside-scans")
+    return path
+
+
+def from_input(value: object, scans: Path) -> Obstacle:
     """The obstacle of an `addObstacle` input (already checked against OBSTACLE_SCHEMA); a mesh or scan file
-    is read now (cached), so that a bad one is refused here, before anything changes."""
+    is taken only from the folder `scans` and read now (cached), so that a bad one is refused here, before
+    anything changes."""
     obstacle = msgspec.convert(value, Obstacle)
     if obstacle.type == "box":  # valid by the schema, which needs neither a size nor a file: a refusal (422)
         if obstacle.size is None:
@@ -81,7 +109,7 @@ def from_input(value: object) -> Obstacle:
     if obstacle.file is None:
         raise Refused(f"file: a {obstacle.type} obstacle needs its file", reason="file-needed")
     try:
-        obstacle = msgspec.structs.replace(obstacle, file=str(Path(obstacle.file).expanduser().resolve()))
+        obstacle = msgspec.structs.replace(obstacle, file=str(in_scans(obstacle.file, scans)))
         prepare(scene_body(obstacle))  # type: ignore[arg-type]
     except SceneError as e:
         raise Refused(str(e), reason="unusable-file") from None
