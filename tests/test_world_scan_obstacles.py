@@ -1,9 +1,10 @@
 """A scan as an obstacle while the iot-lab runs: the world serves its file beside scene.json, the UR10's TD
 follows and links it too, a newer scan under the same name replaces it, a file that cannot be used is refused
-in one line.
+in one line, and so is a file outside the lab's scans folder (which the world would otherwise serve to anyone).
 
-Its own `twinmesh up` (the iot-lab at `--speed max`, 2000 samples, a fresh tdgen cache); the scan is a small
-patch of points on the UR10's table, clear of the robot where it stands, written as a PCD.
+Its own `twinmesh up` (the iot-lab at `--speed max`, 2000 samples, a fresh tdgen cache, `--scans` a temporary
+folder); the scan is a small patch of points on the UR10's table, clear of the robot where it stands, written
+as a PCD.
 """
 from __future__ import annotations
 
@@ -38,9 +39,10 @@ def _patch(path: Path, seed: int, n: int = 400) -> Path:
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("iot-lab-scans")
+    (tmp / "scans").mkdir()
     lab = start_lab(tmp, None, http=True, things=LISTED, extra_args=(
-        "--speed", "max", "--samples", "2000", "--tdgen-cache", str(tmp / "cache")))
-    lab.tmp = tmp
+        "--speed", "max", "--samples", "2000", "--tdgen-cache", str(tmp / "cache"), "--scans", str(tmp / "scans")))
+    lab.tmp, lab.scans = tmp, tmp / "scans"
     yield lab
     assert lab.stop(), "the lab did not stop cleanly"
 
@@ -64,7 +66,7 @@ def _version(td: dict) -> int:
 
 
 def test_a_scan_obstacle_is_served_by_the_world_and_followed_by_the_ur10(lab, http):
-    scan = _patch(lab.tmp / "patch.pcd", seed=1)
+    scan = _patch(lab.scans / "patch.pcd", seed=1)
     ur10_before = _version(http.get("/ur10").json())
     r = http.post("/world/actions/addObstacle", json={"name": "scan", "type": "points", "file": str(scan),
                                                      "position": SENSOR, "voxel": 0.03})
@@ -89,8 +91,8 @@ def test_a_scan_obstacle_is_served_by_the_world_and_followed_by_the_ur10(lab, ht
 
 
 def test_a_newer_scan_under_its_name_replaces_it_and_a_bad_file_is_refused(lab, http):
-    newer = _patch(lab.tmp / "newer.pcd", seed=2)
-    r = http.post("/world/actions/addObstacle", json={"name": "scan", "type": "points", "file": str(newer),
+    newer = _patch(lab.scans / "newer.pcd", seed=2)
+    r = http.post("/world/actions/addObstacle", json={"name": "scan", "type": "points", "file": "newer.pcd",
                                                      "position": SENSOR, "voxel": 0.03})
     assert r.status_code in (200, 204), r.text
     assert [o["name"] for o in http.get("/world/properties/obstacles").json()] == ["scan"]
@@ -98,9 +100,9 @@ def test_a_newer_scan_under_its_name_replaces_it_and_a_bad_file_is_refused(lab, 
     (body,) = [b for b in scene["bodies"] if b["name"] == "obstacle-scan"]
     assert http.get(f"/world/files/{body['file']}").content == newer.read_bytes()
 
-    (lab.tmp / "empty.pcd").write_bytes(b"")
+    (lab.scans / "empty.pcd").write_bytes(b"")
     r = http.post("/world/actions/addObstacle", json={"name": "empty", "type": "points",
-                                                     "file": str(lab.tmp / "empty.pcd"), "position": SENSOR})
+                                                     "file": str(lab.scans / "empty.pcd"), "position": SENSOR})
     assert r.status_code == 422 and r.json()["reason"] == "unusable-file"
     assert "empty.pcd" in r.json()["detail"] and "\n" not in r.json()["detail"]
     r = http.post("/world/actions/addObstacle", json={"name": "nofile", "type": "mesh", "position": SENSOR})
@@ -110,3 +112,24 @@ def test_a_newer_scan_under_its_name_replaces_it_and_a_bad_file_is_refused(lab, 
     assert http.post("/world/actions/removeObstacle", json={"name": "scan"}).status_code == 200
     assert "obstacle-scan" not in {b["name"] for b in http.get("/world/files/scene.json").json()["bodies"]}
     eventually(lambda: not _links(http.get("/world").json(), SCENE_ASSET), timeout=30, what="the link gone")
+
+
+@pytest.mark.parametrize("how", ["absolute", "dot-dot", "link-out"])
+def test_a_file_outside_the_scans_folder_is_refused_and_never_served(lab, http, how):
+    (lab.tmp / "private").mkdir(exist_ok=True)
+    secret = _patch(lab.tmp / "private" / "secret.pcd", seed=3)  # a usable scan: refused for where it is
+    if how == "link-out":
+        (lab.scans / "innocent.pcd").unlink(missing_ok=True)
+        (lab.scans / "innocent.pcd").symlink_to(secret)
+    file = {"absolute": str(secret), "dot-dot": "../private/secret.pcd", "link-out": "innocent.pcd"}[how]
+    before = http.get("/world/files/scene.json").json()
+    r = http.post("/world/actions/addObstacle", json={"name": "peek", "type": "points", "file": file,
+                                                     "position": SENSOR})
+    assert r.status_code == 422 and r.headers["content-type"].startswith("application/problem+json"), r.text
+    problem = r.json()
+    assert problem["reason"] == "file-outside-scans"
+    assert file in problem["detail"] and str(lab.scans.resolve()) in problem["detail"] and "\n" not in problem["detail"]
+    assert "peek" not in {o["name"] for o in http.get("/world/properties/obstacles").json()}
+    assert http.get("/world/files/scene.json").json() == before  # nothing moved, nothing new to download
+    assert {http.get(f"/world/files/scene-{n}.pcd").status_code for n in ("secret", "innocent")} == {404}
+    assert http.get("/world/properties/stepping").json() is True  # the world keeps serving
