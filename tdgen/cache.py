@@ -116,7 +116,7 @@ def cache_key(twin: TwinDescription, urdf: Path | None = None) -> str:
     scene's bodies name and the code."""
     inputs = {**twin_inputs(twin), "code": code_fingerprint(),
               "meshes": meshes_fingerprint(urdf, twin.packages) if urdf is not None else None,
-              "scene_files": scene_files_fingerprint(twin.scene)}
+              "scene_file_contents": scene_files_fingerprint(twin.scene)}
     return hashlib.sha256(msgspec.json.encode(inputs, order="sorted")).hexdigest()[:32]
 
 
