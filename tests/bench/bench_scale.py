@@ -17,7 +17,7 @@ p50/p99 to random devices over HTTP and over Zenoh; property-change fan-out to 1
                                       [--soak S]
 
 With `--hosts H` (root: Linux network namespaces, tests/netns.py) each fleet is spread over H hosts:
-the lab and its adapter on the first, `up fleet --join` on the others (each with its router, or with
+the lab and its adapter on the first, `up fleet --join` on the others (each with its gateway, or with
 `--direct` none: their devices link straight to the lab's router); figures sum all hosts.
 """
 from __future__ import annotations
@@ -313,7 +313,7 @@ def row(topology: str, n: int, r: dict) -> str:
     per_rss = sum(m for m, _, _ in fleet) / 2**20
     per_fds = sum(f for _, f, _ in fleet)
     per_thr = sum(t for _, _, t in fleet)
-    where = (f" ({r['hosts']} hosts{', direct' if r.get('direct') else ', a router each'})"
+    where = (f" ({r['hosts']} hosts{', direct' if r.get('direct') else ', a gateway each'})"
              if r.get("hosts", 1) > 1 else "")
     joined = f" ({r['joined']:.1f} s after the other hosts' fleets started)" if r.get("hosts", 1) > 1 else ""
     return (f"| {topology}{where} | {n:,} | {r['ready']:.1f} s{joined} | {per_rss:.0f} MB / {per_fds:,} / {per_thr} "
