@@ -1,6 +1,6 @@
 #!/bin/sh
 # Host B of a two-host lab: devices of its own (one fleet station: belt-1, infrared-1, color-1, light-1,
-# climate-1) joining host A's lab through a router on this host. Run on host B, until Ctrl-C:
+# climate-1) joining host A's lab through a gateway on this host. Run on host B, until Ctrl-C:
 #
 #   LAB_HOST=host-a sh examples/hosts/host-b.sh        # LAB_HOST: host A's name or address
 #

@@ -13,7 +13,7 @@ Mode = Literal["peer", "client", "router"]
 
 
 # Zenoh expires a link after the lease its *other* end announced, and each end sends keep-alives every
-# own lease / 4. A router that joins another host's lab (or a robot that joins it directly, `robot
+# own lease / 4. A gateway that joins another host's lab (or a robot that joins it directly, `robot
 # --join`) announces a short lease, so that the lab sees a cut cable within 1.5 s. No other process
 # does: the lab's router would send each of its local clients a keep-alive every 0.375 s (a fleet's
 # worth of messages at idle; the figure: docs/benchmarks.md).
