@@ -14,7 +14,10 @@ How each command is run, as a user following the page would run it:
 - everything else must exit 0 (curl with `--fail-with-body`, so any 4xx/5xx fails it), a `python` block too.
 Commands run in a shell in a scratch directory, with `twinmesh` from this interpreter's environment and
 `TWINMESH_CACHE` and `XDG_DATA_HOME` (a secure lab's secrets) in that directory (robot workspaces are generated
-afresh), and `twinmesh wait` given 600 s instead of 120 (`TWINMESH_WAIT_TIMEOUT`): a busy machine starts labs slowly.
+afresh), the compiled code where this environment keeps it (`NUMBA_CACHE_DIR`: compiled once per machine, as for a
+user's every start after the first; an empty one started a background compile of a minute of CPU per run, which
+tests/test_first_start.py covers), and `twinmesh wait` given 600 s instead of 120 (`TWINMESH_WAIT_TIMEOUT`): a
+busy machine starts labs slowly.
 """
 from __future__ import annotations
 
@@ -29,6 +32,8 @@ from pathlib import Path
 
 import pytest
 from labs import REPO, free_port
+
+from tdgen.robot.cores import compiled_code_dir
 
 README = REPO / "README.md"
 DOCS = REPO / "docs"
@@ -116,6 +121,7 @@ class Walk:
         bin_dir = str(Path(sys.executable).parent)
         return {**os.environ, "PATH": bin_dir + os.pathsep + os.environ.get("PATH", ""),
                 "TWINMESH_CACHE": str(self.cwd / "cache"), "XDG_DATA_HOME": str(self.cwd / "data"),
+                "NUMBA_CACHE_DIR": str(compiled_code_dir()),
                 "PYTHONUNBUFFERED": "1", "TWINMESH_CONNECT": f"tcp/127.0.0.1:{self.zenoh_port}",
                 "TWINMESH_WAIT_TIMEOUT": "600"}  # `wait --timeout`: a lab starts slowly on a busy machine
 
@@ -247,6 +253,7 @@ PAGES = pages()
 
 
 @pytest.mark.lab
+@pytest.mark.slow  # the pages together take minutes: the module starts first (conftest.py)
 @pytest.mark.timeout(1800)  # a page that starts a lab waits for it: minutes on a busy machine
 @pytest.mark.parametrize("page", PAGES, ids=[str(p.relative_to(REPO)) for p in PAGES])
 def test_every_block_of_the_page_works_as_shown(walk, page):
