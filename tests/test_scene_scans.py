@@ -192,3 +192,51 @@ def test_a_body_made_where_a_scan_was_removed_is_itself_to_the_fast_model(tmp_pa
         assert np.allclose(corners[:, :2].mean(axis=0), [5.0, 0.0], atol=1e-6)  # the shelf's, at x = 5 m
     finally:
         pb.disconnect(client)
+
+
+def _box_distance(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Each point's Euclidean distance to the nearest of the boxes (low, high), 0 inside one."""
+    out = np.full(len(points), np.inf)
+    for start in range(0, len(boxes), 256):
+        lo, hi = boxes[start:start + 256, 0], boxes[start:start + 256, 1]
+        gap = np.maximum(np.maximum(lo[None] - points[:, None], points[:, None] - hi[None]), 0.0)
+        out = np.minimum(out, np.linalg.norm(gap, axis=2).min(axis=1))
+    return out
+
+
+@pytest.fixture(scope="module")
+def scan_alone(scanned_world):
+    """The scan alone in a world holding part of the scene, as a live update checks an added body."""
+    robot, scene, _, truth = scanned_world
+    world = CollisionWorld(robot, msgspec.structs.replace(scene, bodies=scene.bodies[1:]), part=True)
+    yield robot, world, truth
+    world.close()
+
+
+def test_the_distance_field_never_puts_a_place_further_from_the_scan_than_it_is(scan_alone):
+    from tdgen.robot.scan_bodies import clearance, scan_of
+
+    _, world, _ = scan_alone
+    scan = scan_of(world._pb, world.client, next(iter(world._scene_names)))
+    assert scan is not None
+    field = clearance(scan)
+    low, high = scan.boxes[:, 0].min(axis=0), scan.boxes[:, 1].max(axis=0)
+    points = np.random.default_rng(8).uniform(low - 0.5, high + 0.5, (20_000, 3))  # also beyond the grid
+    points[:2000] = scan.boxes[:2000 // 2, 0].repeat(2, axis=0)[:2000] + 1e-4  # some just inside a box
+    true, said = _box_distance(points, scan.boxes), field.distance(points)
+    assert np.all(said <= true + 1e-6), f"{np.max(said - true):.4f} m more than the truth"
+    assert np.median(true - said) < 2 * np.sqrt(3) * field.cell  # close to it, not 0 everywhere
+
+
+def test_the_scans_shortcut_clears_no_sample_that_touches_it(scan_alone):
+    """A live update asks a world of the added scan which base-free samples touch it: the distance field
+    clears most at once, and never one that touches the scan or comes within 5 mm of a scanned point."""
+    robot, world, truth = scan_alone
+    fast = FastCollision(world)
+    assert fast.scans is not None
+    qs = np.random.default_rng(9).uniform(robot.lows(), robot.highs(), (600, len(robot.lows())))
+    exact, cleared = world.colliding(qs), fast.scans.clear(qs)
+    assert exact.sum() > 50 and not (cleared & exact).any()
+    assert cleared.sum() > 0.5 * (~exact).sum()  # it does spare the compiled check most of the free ones
+    assert not any(truth.touches(0.005, q) for q in qs[cleared])
+    assert np.array_equal(fast.colliding(qs), exact)

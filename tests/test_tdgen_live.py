@@ -69,6 +69,31 @@ def test_adding_moving_and_removing_boxes_flags_the_samples_as_a_generation_woul
         live.close()
 
 
+def test_a_scan_added_flags_the_samples_and_words_the_td_as_a_generation_would(ur10, base, tmp_path, monkeypatch):
+    """A scan of a crate and a pillar beside the UR10, added live: its distance field clears most samples
+    at once, and the flags and warnings are still those of a generation in the scene with the scan."""
+    from tdgen.robot.surroundings import PointsBody, Surroundings
+    from tests.scans import render_scan, write_pcd
+
+    monkeypatch.setenv("TWINMESH_CACHE", str(tmp_path / "cache"))
+    seen = Surroundings(name="seen", bodies=[CRATE, PILLAR])
+    scan = render_scan(seen, eye=(1.2, -1.0, 1.6), target=(0.0, 0.2, 0.8), size=(96, 72), seed=4)
+    body = PointsBody(name="scan", file=str(write_pcd(scan, tmp_path / "seen.pcd")), position=scan.position,
+                      rpy=scan.rpy)
+    generated = sample_workspace(ur10, base, SAMPLES, seed=3)
+    live = LiveSamples(ur10, base, generated, encoded(ur10, generated))
+    try:
+        scene = with_bodies(base, body)
+        live, _ = live.rescene(scene)
+        scratch = sample_workspace(ur10, scene, SAMPLES, seed=3)
+        assert live.samples.collision.sum() > generated.collision.sum(), "the scan touches no sample"
+        assert np.array_equal(live.samples.collision, scratch.collision)
+        assert live.flags.data == encoded(ur10, scratch)
+        assert live.warnings() == collision_warnings(ur10, scene, scratch)
+    finally:
+        live.close()
+
+
 def test_a_change_a_live_update_cannot_follow_asks_for_a_generation(ur10, base):
     generated = sample_workspace(ur10, base, 500, seed=1)
     live = LiveSamples(ur10, base, generated, encoded(ur10, generated))

@@ -49,6 +49,8 @@ class Prepared:
     seconds: float = 0.0  # to read and prepare (or take from the cache)
     cached: bool = False
     key: str = ""  # its cache key: what a body built from it is marked with (`build`)
+    field: Clearance | None = None  # voxels: the distance field of its boxes, made at its first use (`clearance`)
+    lists: list[tuple[list, list]] | None = None  # the parts as pybullet takes them, made at the first `build`
 
 
 def cache_dir() -> Path:
@@ -264,15 +266,8 @@ def boxes_of(pb, client: int, body: int) -> np.ndarray | None:
     """The padded boxes (B, 2, 3), scene frame, of a scan body built here, else None: what the fast
     model can take for it instead of the box around each group of faces. Known by the body's own mark,
     which goes with it: pybullet gives a removed body's id to the next one made."""
-    try:
-        mark = pb.getUserDataId(body, BUILT_FROM, physicsClientId=client)
-        if mark < 0:
-            return None
-        key = pb.getUserData(mark, physicsClientId=client)
-    except pb.error:  # a client since closed
-        return None
-    held = _BUILT.get(key.decode() if isinstance(key, bytes) else str(key))
-    return held.boxes if held is not None and held.kind == "voxels" else None
+    held = scan_of(pb, client, body)
+    return held.boxes if held is not None else None
 
 
 def fast_elements(pb, client: int, body: int) -> list[tuple[np.ndarray, np.ndarray]] | None:
@@ -295,6 +290,63 @@ def fast_elements(pb, client: int, body: int) -> list[tuple[np.ndarray, np.ndarr
 
 
 FAST_PIECE = 0.3  # m: the longest side of a box as the fast model takes it (its broad phase's cell)
+FIELD_CELL = 0.02  # m: the distance field's cell, unless the scan's extent needs larger ones
+FIELD_CELLS = 8_000_000  # at most, in a distance field (float32: 32 MB)
+
+
+@dataclass
+class Clearance:
+    """How far every place is from a scan's padded boxes, on a grid: one lookup per sphere instead of
+    a sphere against thousands of boxes. Conservative: `distance` is never more than the true one."""
+
+    origin: np.ndarray  # (3,) the grid's low corner, scene frame (m)
+    cell: float  # m
+    centres: np.ndarray  # (X, Y, Z) float32: from each cell's centre to the nearest occupied cell's centre (m)
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(..., 3) points, scene frame -> (...) a lower bound of their distance to the boxes (m; <= 0: may
+        touch). A point outside the grid is taken at its nearest place on it, which is no further from
+        any box (all are on the grid); a point and a box's point may each lie anywhere in their cells, so
+        a cell's diagonal comes off the centres' distance."""
+        shape = np.asarray(self.centres.shape)
+        at = np.floor((points - self.origin) / self.cell).astype(np.int64)
+        np.clip(at, 0, shape - 1, out=at)
+        return self.centres[at[..., 0], at[..., 1], at[..., 2]] - self.cell * np.sqrt(3.0)
+
+
+def clearance(prepared: Prepared) -> Clearance:
+    """The distance field of a scan's padded boxes, made once per scan (held with it): every cell that
+    any box reaches into is occupied, and scipy's exact Euclidean distance transform gives each cell the
+    distance between its centre and the nearest occupied one's."""
+    if prepared.field is not None:
+        return prepared.field
+    from scipy.ndimage import distance_transform_edt
+
+    lo, hi = prepared.boxes[:, 0], prepared.boxes[:, 1]
+    low, high = lo.min(axis=0), hi.max(axis=0)
+    cell = max(FIELD_CELL, float(np.cbrt(np.prod(high - low + 2 * FIELD_CELL) / FIELD_CELLS)) * 1.01)
+    origin = low - cell  # a free layer all round: the field is measured from inside the grid
+    shape = np.floor((high - origin) / cell).astype(np.int64) + 2
+    first = np.floor((lo - origin) / cell).astype(np.int64)  # the cells a box's points can lie in
+    last = np.floor((hi - origin) / cell).astype(np.int64) + 1
+    free = np.ones(tuple(shape), dtype=bool)
+    for (a, b, c), (x, y, z) in zip(first, last):
+        free[a:x, b:y, c:z] = False
+    prepared.field = Clearance(origin, cell, distance_transform_edt(free, sampling=cell).astype(np.float32))
+    return prepared.field
+
+
+def scan_of(pb, client: int, body: int) -> Prepared | None:
+    """The prepared scan a body was built from (`build`), else None (any other body)."""
+    try:
+        mark = pb.getUserDataId(body, BUILT_FROM, physicsClientId=client)
+        if mark < 0:
+            return None
+        key = pb.getUserData(mark, physicsClientId=client)
+    except pb.error:  # a client since closed
+        return None
+    held = _BUILT.get(key.decode() if isinstance(key, bytes) else str(key))
+    return held if held is not None and held.kind == "voxels" else None
 
 
 def _pieces(lo: np.ndarray, hi: np.ndarray, longest: float) -> tuple[np.ndarray, np.ndarray]:
@@ -314,13 +366,15 @@ def build(prepared: Prepared, position, orientation, client: int) -> int:
     """The body in pybullet client `client`: a static body whose links are the prepared parts."""
     import pybullet as pb
 
+    if prepared.lists is None:  # once per scan: a live update builds it in two worlds, each time it is added
+        prepared.lists = [(verts.tolist(), tris.reshape(-1).tolist()) for verts, tris in prepared.parts]
     shapes = []
-    for verts, tris in prepared.parts:
+    for verts, tris in prepared.lists:
         if len(tris):
-            shapes.append(pb.createCollisionShape(pb.GEOM_MESH, vertices=verts.tolist(), indices=tris.reshape(-1).tolist(),
+            shapes.append(pb.createCollisionShape(pb.GEOM_MESH, vertices=verts, indices=tris,
                                                   flags=pb.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=client))
         else:
-            shapes.append(pb.createCollisionShape(pb.GEOM_MESH, vertices=verts.tolist(), physicsClientId=client))
+            shapes.append(pb.createCollisionShape(pb.GEOM_MESH, vertices=verts, physicsClientId=client))
     base, links = shapes[0], shapes[1:]
     n = len(links)
     body = pb.createMultiBody(0.0, base, -1, list(position), list(orientation), linkMasses=[0.0] * n,
