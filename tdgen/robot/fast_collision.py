@@ -301,14 +301,8 @@ class ScanClearance:
     the link first, its outer spheres where that one may touch. Such a configuration is one the sphere
     model would find free (its outer spheres reach no padded box); the rest go on to it."""
 
-    BATCH = 8192  # configurations per step: memory grows with it, not with N
-
     def __init__(self, model: SphereModel, fields: list):
-        self.frames, self.fields = model.frames, fields
-        t = model.tables
-        self.links = np.flatnonzero(t.scene_links)
-        self.bound_c, self.bound_r = t.bound_c, t.bound_r
-        self.outer = [(t.outer_c[k, :t.outer_n[k]], t.outer_r[k, :t.outer_n[k]]) for k in range(len(t.outer_n))]
+        self.model, self.fields = model, fields
 
     @classmethod
     def of(cls, world: CollisionWorld, model: SphereModel) -> ScanClearance | None:
@@ -322,33 +316,16 @@ class ScanClearance:
             return None
         return cls(model, [clearance(scan) for scan in scans if scan is not None])
 
-    def _apart(self, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
-        """(..., 3) sphere centres, (...) or broadcast radii -> clear of every scan by more than a micron."""
-        return np.all([field.distance(centres) > radii + 1e-6 for field in self.fields], axis=0)
-
     def clear(self, q: np.ndarray) -> np.ndarray:
         """(N, n) main-joint values -> (N,) bool: surely touching no scan."""
-        out = np.empty(len(q), dtype=bool)
-        for start in range(0, len(q), self.BATCH):
-            out[start:start + self.BATCH] = self._clear(q[start:start + self.BATCH])
+        out = np.ones(len(q), dtype=bool)
+        for start in range(0, len(q), CHUNK):
+            values = self.model.frames.values(q[start:start + CHUNK])
+            for field in self.fields:
+                with LAUNCH:
+                    out[start:start + CHUNK] &= kernel.clear_of_field(values, self.model.tables, field.centres,
+                                                                      field.origin, field.cell)
         return out
-
-    def _clear(self, q: np.ndarray) -> np.ndarray:
-        rot, pos = self.frames.frames(q)
-        clear = np.ones(len(q), dtype=bool)
-        for k in self.links:
-            rows = np.flatnonzero(clear)
-            if not len(rows):
-                break
-            r, p = rot[rows, k], pos[rows, k]
-            near = rows[~self._apart(r @ self.bound_c[k] + p, self.bound_r[k])]
-            centres, radii = self.outer[k]
-            if len(near) and len(radii):
-                world = np.einsum("nij,sj->nsi", rot[near, k], centres) + pos[near, k][:, None]
-                clear[near] = np.all(self._apart(world, radii[None]), axis=1)
-            elif len(near):
-                clear[near] = False
-        return clear
 
 
 class FastCollision:
@@ -510,6 +487,8 @@ def compile_all(wait: bool = True) -> None:
             q = np.random.default_rng(0).uniform(robot.lows(), robot.highs(), (64, len(robot.joints)))
             verdict, tips = fast.spheres.verdicts_and_tips(q, robot.ee_link)  # the loop on all cores
             fast.spheres.frames.positions(q, robot.ee_link)  # the tips alone (the exact model's points)
+            kernel.clear_of_field(fast.spheres.frames.values(q), fast.spheres.tables,  # a scan's distance field
+                                  np.zeros((1, 1, 1), dtype=np.float32), np.zeros(3), 1.0)
             points_csv.encode(robot, tips * 1000.0, verdict == COLLIDES, q, compile_here=True)
             ForwardKinematics(robot).positions(q[0])
         finally:

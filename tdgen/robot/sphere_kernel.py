@@ -523,6 +523,46 @@ def verdicts(values, t, pad, sure_depth, tip, tips_out):
     return out
 
 
+@njit(cache=True, parallel=True, nogil=True, fastmath=FAST)
+def clear_of_field(values, t, centres, origin, cell):
+    """(N, m) joint values -> (N,) whether every link that meets the scene keeps its outer spheres clear of
+    what a distance field stands for (`scan_bodies.Clearance`, whose lookup this repeats): the link's
+    bounding sphere first, its outer spheres where that one may touch."""
+    n = values.shape[0]
+    out = np.zeros(n, dtype=np.bool_)
+    per_block = (n + BLOCKS - 1) // BLOCKS
+    for block in prange(BLOCKS):
+        s = _scratch(t)
+        for c in range(block * per_block, min(n, (block + 1) * per_block)):
+            _place(values[c], t, s)
+            out[c] = _clear_of_field(t, s, centres, origin, cell)
+    return out
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _clear_of_field(t, s, centres, origin, cell):
+    for k in range(t.parent.shape[0]):
+        if not t.scene_links[k]:
+            continue
+        if _field_distance(s.bw, k, centres, origin, cell) > t.bound_r[k] + 1e-6:
+            continue
+        _spheres(t, s, k)
+        for i in range(t.outer_n[k]):
+            if _field_distance(s.ow[k], i, centres, origin, cell) <= t.outer_r[k, i] + 1e-6:
+                return False
+    return True
+
+
+@njit(cache=True, inline="always", fastmath=FAST)
+def _field_distance(points, i, centres, origin, cell):
+    """A lower bound of point i's distance to a distance field's boxes: its cell's (the nearest cell of the
+    grid, for a point beyond it) less a cell's diagonal."""
+    x = min(max((points[i, 0] - origin[0]) / cell, 0.0), centres.shape[0] - 1.0)
+    y = min(max((points[i, 1] - origin[1]) / cell, 0.0), centres.shape[1] - 1.0)
+    z = min(max((points[i, 2] - origin[2]) / cell, 0.0), centres.shape[2] - 1.0)
+    return centres[int(x), int(y), int(z)] - cell * np.sqrt(3.0)
+
+
 @njit(cache=True, inline="always", fastmath=FAST)
 def _f1(floats, meta, k):
     return floats[meta[k, 0]:meta[k, 0] + meta[k, 1]]
