@@ -8,8 +8,9 @@ must be listed alone again before the next module borrows it. The lab stops with
 must stop cleanly.
 
 The `iot-lab` is shared the same way by the modules that used to start it alike (`iot_lab`); a session
-fixture lives once per xdist worker, so those modules carry `xdist_group("iot-lab")` and run on one worker
-(`--dist loadgroup`; every other module is a group of its own, as under `--dist loadfile`).
+fixture lives once per xdist worker, so those modules are one unit of work (`SHARED_LAB`), run by one
+worker; every other module is a unit of its own, as under `--dist loadfile`. (xdist's own `xdist_group`
+marks do nothing with pytest 9: `--dist loadgroup` then hands out every test alone.)
 
 Test helpers (`labs`, `waiting`, `probe`, `recordings`, `arms`, `zoo`, `tdschema`, `interop`) are
 modules of this folder: test modules import from them, never from each other.
@@ -27,6 +28,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from labs import PLATFORM_THINGS, Lab, start_lab, start_robot_lab  # noqa: E402
 from waiting import eventually  # noqa: E402
 
+# modules that borrow one session lab, by the xdist unit of work that keeps them on one worker
+SHARED_LAB = {"tests/test_fuzz_affordances.py": "iot-lab", "tests/test_iot_lab.py": "iot-lab",
+              "tests/test_td_conformance.py": "iot-lab"}
 IOT_LAB_THINGS = PLATFORM_THINGS | {"ur10", "light-left", "light-right", "pan-tilt-1", "pan-tilt-2", "tdgen"}
 LIGHTS_THINGS = frozenset({"light-left", "light-right", "tdgen"})  # `up` always starts the TD generator
 PLATFORM_LISTED = PLATFORM_THINGS | {"tdgen"}
@@ -138,7 +142,7 @@ def iot_lab_shared(tmp_path_factory, tdgen_cache) -> Iterator[Lab]:
 
 @pytest.fixture(scope="module")
 def iot_lab(iot_lab_shared) -> Iterator[Lab]:
-    """The shared iot-lab, its room reset, for this module (whose tests carry `xdist_group("iot-lab")`)."""
+    """The shared iot-lab, its room reset, for this module (which `SHARED_LAB` names)."""
     with lend(iot_lab_shared, IOT_LAB_THINGS, _room_reset) as lab:
         yield lab
 
@@ -151,13 +155,26 @@ def _cost(item: pytest.Item) -> int:
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The costliest modules first, each module whole and in its own order: xdist hands out work units in
+    """The costliest modules first, each module whole and in its own order: xdist hands out units of work in
     collection order (`--no-loadscope-reorder`), so the long ones start at once and the unit layer fills the
-    gaps at the end, instead of a module of minutes starting last beside an idle worker. Every module not in
-    a named `xdist_group` is a group of its own (`--dist loadgroup` then keeps it on one worker)."""
+    gaps at the end, instead of a module of minutes starting last beside an idle worker (xdist's own order,
+    by test count, put test_wheel's two tests of minutes last)."""
     cost: dict[Path, int] = {}
     for item in items:
         cost[item.path] = min(cost.get(item.path, 3), _cost(item))
-        if item.get_closest_marker("xdist_group") is None:
-            item.add_marker(pytest.mark.xdist_group(str(item.path.relative_to(item.config.rootpath))))
     items.sort(key=lambda item: cost[item.path])
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """`--dist loadfile`, with the modules of one `SHARED_LAB` entry as one unit of work."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModulesAndSharedLabs(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return SHARED_LAB.get(module, module)
+
+    return ModulesAndSharedLabs(config, log)

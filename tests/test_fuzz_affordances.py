@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis_jsonschema import from_schema
 
-pytestmark = [pytest.mark.lab, pytest.mark.xdist_group("iot-lab")]  # the shared iot-lab
+pytestmark = pytest.mark.lab  # on the session's iot-lab, with the others conftest.SHARED_LAB names
 
 EXAMPLES = int(os.environ.get("TWINMESH_FUZZ_EXAMPLES", "4"))
 SCHEMA_KEYS = {"type", "const", "enum", "minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "minLength",

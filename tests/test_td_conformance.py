@@ -21,10 +21,11 @@ import httpx
 import jsonschema
 import pytest
 from interop import npm
+from waiting import eventually
 
 from mesh.wot.units import PREFIX, QUDT_UNITS
 
-pytestmark = [pytest.mark.lab, pytest.mark.xdist_group("iot-lab")]  # the shared iot-lab
+pytestmark = pytest.mark.lab  # on the session's iot-lab, with the others conftest.SHARED_LAB names
 
 PROBLEM = "application/problem+json"
 REFUSALS = {409, 422, 503}       # SPEC §7: a valid request the device refuses, or a Thing that cannot act now
@@ -48,13 +49,11 @@ def lab(iot_lab):
 def tds(lab) -> dict[str, dict]:
     """Every served TD once the UR10's workspace is generated, and the directory's own TD."""
     with httpx.Client(base_url=lab.http, timeout=120) as http:
-        for _ in range(600):
+        def generated() -> dict[str, dict] | None:
             listed = {td["title"]: td for td in http.get("/things").json()}
-            if any("workspace" in link["rel"] for link in listed.get("ur10", {}).get("links", [])):
-                break
-            __import__("time").sleep(0.2)
-        else:
-            raise AssertionError("the UR10's workspace was not generated")
+            return listed if any("workspace" in link["rel"] for link in listed.get("ur10", {}).get("links", [])) else None
+
+        listed = eventually(generated, timeout=120, what="the UR10's workspace generated")
         return {**listed, "directory": http.get("/.well-known/wot").json()}
 
 
