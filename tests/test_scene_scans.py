@@ -225,7 +225,9 @@ def test_the_distance_field_never_puts_a_place_further_from_the_scan_than_it_is(
     points[:2000] = scan.boxes[:2000 // 2, 0].repeat(2, axis=0)[:2000] + 1e-4  # some just inside a box
     true, said = _box_distance(points, scan.boxes), field.distance(points)
     assert np.all(said <= true + 1e-6), f"{np.max(said - true):.4f} m more than the truth"
-    assert np.median(true - said) < 2 * np.sqrt(3) * field.cell  # close to it, not 0 everywhere
+    inside = np.all((points > low) & (points < high), axis=1)  # beyond the grid: taken at its edge
+    away = inside & (true > 0.2) & (true < 0.6)  # where a link's sphere would be cleared
+    assert away.sum() > 500 and np.mean(said[away] > 0.05) > 0.99
 
 
 def test_the_scans_shortcut_clears_no_sample_that_touches_it(scan_alone):

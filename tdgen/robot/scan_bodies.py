@@ -301,7 +301,7 @@ class Clearance:
 
     origin: np.ndarray  # (3,) the grid's low corner, scene frame (m)
     cell: float  # m
-    centres: np.ndarray  # (X, Y, Z) float32: from each cell's centre to the nearest occupied cell's centre (m)
+    centres: np.ndarray  # (X, Y, Z) float32: at most the distance from each cell's centre to the nearest occupied one's (m)
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """(..., 3) points, scene frame -> (...) a lower bound of their distance to the boxes (m; <= 0: may
@@ -316,11 +316,13 @@ class Clearance:
 
 def clearance(prepared: Prepared) -> Clearance:
     """The distance field of a scan's padded boxes, made once per scan (held with it): every cell that
-    any box reaches into is occupied, and scipy's exact Euclidean distance transform gives each cell the
-    distance between its centre and the nearest occupied one's."""
+    any box reaches into is occupied, and each cell gets its chessboard distance (in cells, times the
+    cell) to the nearest occupied one, which is never more than the Euclidean one between their centres.
+    scipy's chamfer transform makes it several times quicker than its exact Euclidean one, and clears
+    nearly as many samples: a link's spheres near the scan are near it by either measure."""
     if prepared.field is not None:
         return prepared.field
-    from scipy.ndimage import distance_transform_edt
+    from scipy.ndimage import distance_transform_cdt
 
     lo, hi = prepared.boxes[:, 0], prepared.boxes[:, 1]
     low, high = lo.min(axis=0), hi.max(axis=0)
@@ -332,7 +334,8 @@ def clearance(prepared: Prepared) -> Clearance:
     free = np.ones(tuple(shape), dtype=bool)
     for (a, b, c), (x, y, z) in zip(first, last):
         free[a:x, b:y, c:z] = False
-    prepared.field = Clearance(origin, cell, distance_transform_edt(free, sampling=cell).astype(np.float32))
+    steps = distance_transform_cdt(free, metric="chessboard")  # exact for this metric: 26 neighbours, each 1
+    prepared.field = Clearance(origin, cell, (steps * cell).astype(np.float32))
     return prepared.field
 
 
