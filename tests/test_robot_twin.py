@@ -356,7 +356,7 @@ def test_a_robot_slow_to_give_its_twin_at_first_still_gets_its_td(mesh, twin, tm
         observer = stack.enter_context(open_session(mesh))
         observer.declare_subscriber(mesh.keys.td("ur10"), lambda s: tds.put(decode_td(s.payload.to_bytes())))
         thing = RobotThing(stack.enter_context(open_session(mesh)), mesh, twin, samples=SAMPLES)
-        source, media = thing.thing._files["twin.json"]
+        source, media = thing._files["twin.json"]
         asked: list[float] = []
 
         def slow_at_first() -> bytes:
@@ -365,7 +365,7 @@ def test_a_robot_slow_to_give_its_twin_at_first_still_gets_its_td(mesh, twin, tm
                 time.sleep(1.5)  # longer than the service's query timeout
             return source()
 
-        thing.thing._files["twin.json"] = (slow_at_first, media)
+        thing._files["twin.json"] = (slow_at_first, media)
         stack.enter_context(thing)
         stack.enter_context(TdgenService(stack.enter_context(open_session(patient)), patient, tmp_path / "cache", 1))
         generated = _wait(tds, lambda td: td.version == {"instance": "0"} and any(
