@@ -99,13 +99,14 @@ def _groups(centres: np.ndarray, radii: np.ndarray) -> dict[str, np.ndarray]:
     order = np.argsort(group, kind="stable")
     counts = np.bincount(group, minlength=int(group.max()) + 1 if len(group) else 0)
     start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    group_c, group_r = np.zeros((len(counts), 3)), np.zeros(len(counts))
-    for g in range(len(counts)):
-        members = order[start[g]:start[g + 1]]
-        lo = (centres[members] - radii[members, None]).min(axis=0)
-        hi = (centres[members] + radii[members, None]).max(axis=0)
-        group_c[g] = (lo + hi) / 2
-        group_r[g] = np.max(np.linalg.norm(centres[members] - group_c[g], axis=1) + radii[members])
+    if not len(counts):
+        return {"group_c": np.zeros((0, 3)), "group_r": np.zeros(0), "group_start": start,
+                "group_members": order.astype(np.int64)}
+    c, r = centres[order], radii[order]  # members group by group, each group's run reduced at once
+    lo = np.minimum.reduceat(c - r[:, None], start[:-1], axis=0)
+    hi = np.maximum.reduceat(c + r[:, None], start[:-1], axis=0)
+    group_c = (lo + hi) / 2
+    group_r = np.maximum.reduceat(np.linalg.norm(c - group_c[group[order]], axis=1) + r, start[:-1])
     return {"group_c": group_c, "group_r": group_r, "group_start": start, "group_members": order.astype(np.int64)}
 
 
