@@ -221,13 +221,13 @@ def test_the_distance_field_never_puts_a_place_further_from_the_scan_than_it_is(
     assert scan is not None
     field = clearance(scan)
     low, high = scan.boxes[:, 0].min(axis=0), scan.boxes[:, 1].max(axis=0)
-    points = np.random.default_rng(8).uniform(low - 0.5, high + 0.5, (20_000, 3))  # also beyond the grid
-    points[:2000] = scan.boxes[:2000 // 2, 0].repeat(2, axis=0)[:2000] + 1e-4  # some just inside a box
+    points = np.random.default_rng(8).uniform(low - 0.5, high + 0.5, (6_000, 3))  # also beyond the grid
+    points[:600] = scan.boxes[:600 // 2, 0].repeat(2, axis=0)[:600] + 1e-4  # some just inside a box
     true, said = _box_distance(points, scan.boxes), field.distance(points)
     assert np.all(said <= true + 1e-6), f"{np.max(said - true):.4f} m more than the truth"
     inside = np.all((points > low) & (points < high), axis=1)  # beyond the grid: taken at its edge
     away = inside & (true > 0.2) & (true < 0.6)  # where a link's sphere would be cleared
-    assert away.sum() > 500 and np.mean(said[away] > 0.05) > 0.99
+    assert away.sum() > 150 and np.mean(said[away] > 0.05) > 0.99
 
 
 def test_the_scans_shortcut_clears_no_sample_that_touches_it(scan_alone):
