@@ -42,3 +42,26 @@ def scalars(path: Path, entity: str) -> list[float]:
 
 def texts(path: Path, entity: str) -> list[str]:
     return [line for v in read_column(path, entity, "TextLog:text") for line in v]
+
+
+def latest_static(path: Path, entity: str, component: str):
+    """The last static value of an entity's component."""
+    from rerun.chunk import RrdReader
+
+    rows = []
+    for chunk in RrdReader(path).stream().filter(content=entity, is_static=True):
+        batch = chunk.to_record_batch()
+        if chunk.entity_path == entity and component in batch.schema.names:
+            rows += zip(batch.column("rerun.controls.RowId").to_pylist(), batch.column(component).to_pylist())
+    assert rows, f"nothing static at {entity} {component}"
+    return sorted(rows, key=lambda r: r[0])[-1][1]
+
+
+def placed(path: Path, entity: str, local):
+    """Points of an entity's own frame in its parent's, by its static transform."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    t = np.array(latest_static(path, entity, "Transform3D:translation")[0])
+    q = latest_static(path, entity, "Transform3D:quaternion")[0]
+    return Rotation.from_quat(q).apply(np.asarray(local, dtype=float)) + t

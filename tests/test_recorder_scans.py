@@ -19,6 +19,7 @@ from mesh.messages.scene_description import Pose, TwinDescription
 from mesh.recorder.robots import RobotDrawer, read_scene_assets
 from mesh.recorder.scene_assets import MAX_POINTS, read_asset
 from mesh.recorder.scene_drawer import SceneDrawer
+from recordings import latest_static, placed
 
 UR10_URDF = (Path(__file__).resolve().parents[1] / "tdgen" / "robot" / "models" / "ur10.urdf").read_text()
 SENSOR = {"position": [1.2, -0.8, 1.4], "rpy": [-120.0, 5.0, 40.0]}
@@ -36,24 +37,6 @@ def _twin(bodies: list[dict], files: dict[str, str]) -> TwinDescription:
     return TwinDescription(robot="ur10", urdf="tdgen/robot/models/ur10.urdf", urdf_sha256="0" * 64,
                            urdf_file="ur10.urdf", base=Pose((0.0, 0.0, 0.6)), scene={"bodies": bodies},
                            scene_files=files)
-
-
-def _latest(path: Path, entity: str, component: str):
-    from rerun.chunk import RrdReader
-
-    rows = []
-    for chunk in RrdReader(path).stream().filter(content=entity, is_static=True):
-        batch = chunk.to_record_batch()
-        if chunk.entity_path == entity and component in batch.schema.names:
-            rows += zip(batch.column("rerun.controls.RowId").to_pylist(), batch.column(component).to_pylist())
-    assert rows, f"nothing static at {entity} {component}"
-    return sorted(rows, key=lambda r: r[0])[-1][1]
-
-
-def _placed(path: Path, entity: str, local) -> np.ndarray:
-    t = np.array(_latest(path, entity, "Transform3D:translation")[0])
-    q = _latest(path, entity, "Transform3D:quaternion")[0]
-    return Rotation.from_quat(q).apply(np.asarray(local, dtype=float)) + t
 
 
 @pytest.fixture(scope="module")
@@ -87,24 +70,24 @@ def drawn(tmp_path_factory):
 def test_a_scan_is_drawn_as_its_finite_points_where_the_sensor_stood(drawn):
     path, scan, _, _ = drawn
     entity = "/robots/ur10/scene/room"
-    points = _latest(path, entity, "Points3D:positions")
+    points = latest_static(path, entity, "Points3D:positions")
     assert len(points) == len(scan.finite())  # the holes left out, every other point drawn
-    assert np.allclose(_placed(path, entity, points), scan.world(), atol=1e-5)
+    assert np.allclose(placed(path, entity, points), scan.world(), atol=1e-5)
 
 
 def test_a_cad_mesh_is_drawn_as_its_triangles_scaled_to_metres_in_its_pose(drawn):
     path, _, crate, _ = drawn
     entity = "/robots/ur10/scene/crate"
-    assert len(_latest(path, entity, "Mesh3D:triangle_indices")) == len(crate.faces)
-    placed = _placed(path, entity, _latest(path, entity, "Mesh3D:vertex_positions"))
+    assert len(latest_static(path, entity, "Mesh3D:triangle_indices")) == len(crate.faces)
+    drawn = placed(path, entity, latest_static(path, entity, "Mesh3D:vertex_positions"))
     truth = Rotation.from_euler("xyz", CRATE["rpy"], degrees=True).apply(crate.vertices * 0.001) + CRATE["position"]
-    assert np.allclose(placed, truth, atol=1e-6)
+    assert np.allclose(drawn, truth, atol=1e-6)
 
 
 def test_a_file_that_cannot_be_drawn_is_said_and_the_rest_is_drawn(drawn):
     path, _, _, problems = drawn
     assert [p for p in problems if "broken" in p] and all("room" not in p and "crate" not in p for p in problems)
-    assert _latest(path, "/robots/ur10/scene/table", "Boxes3D:half_sizes")
+    assert latest_static(path, "/robots/ur10/scene/table", "Boxes3D:half_sizes")
 
 
 def test_a_large_cloud_is_drawn_with_at_most_100k_of_its_own_points(tmp_path):

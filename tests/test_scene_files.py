@@ -27,7 +27,7 @@ from scans import render_scan, write_pcd
 from waiting import eventually
 
 from mesh.messages.relations import POINTS, SCENE, SCENE_ASSET, TWIN, WORKSPACE
-from recordings import wait_for_line
+from recordings import latest_static, placed, wait_for_line
 from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.model import Robot
 from tdgen.robot.scan_io import read_cloud
@@ -256,34 +256,12 @@ def recording(lights, robot_td, world_td, tmp_path_factory) -> Path:
     return path
 
 
-def _latest(path: Path, entity: str, component: str):
-    """The last static value of an entity's component."""
-    from rerun.chunk import RrdReader
-
-    rows = []
-    for chunk in RrdReader(path).stream().filter(content=entity, is_static=True):
-        batch = chunk.to_record_batch()
-        if chunk.entity_path == entity and component in batch.schema.names:
-            rows += zip(batch.column("rerun.controls.RowId").to_pylist(), batch.column(component).to_pylist())
-    assert rows, f"nothing static at {entity} {component}"
-    return sorted(rows, key=lambda r: r[0])[-1][1]
-
-
-def _placed(path: Path, entity: str, local) -> np.ndarray:
-    """Points of an entity's own frame in its parent's (the robot's scene frame)."""
-    from scipy.spatial.transform import Rotation
-
-    t = np.array(_latest(path, entity, "Transform3D:translation")[0])
-    q = _latest(path, entity, "Transform3D:quaternion")[0]
-    return Rotation.from_quat(q).apply(np.asarray(local, dtype=float)) + t
-
-
 @pytest.mark.parametrize("entity", [f"/robots/{NAME}/scene/room", "/world/bodies/room"], ids=["robot", "world"])
 def test_the_recording_draws_the_scan_as_its_points_where_the_sensor_saw_them(recording, scene_file, entity):
     from scipy.spatial.transform import Rotation
 
     body = next(b for b in json.loads(scene_file.read_text())["bodies"] if b["name"] == "room")
-    drawn = _placed(recording, entity, _latest(recording, entity, "Points3D:positions"))
+    drawn = placed(recording, entity, latest_static(recording, entity, "Points3D:positions"))
     truth = Rotation.from_euler("xyz", body["rpy"], degrees=True).apply(
         read_cloud(scene_file.parent / body["file"])) + body["position"]
     assert drawn.shape == truth.shape and np.allclose(drawn, truth, atol=1e-4)  # fewer than 100,000: every point
@@ -294,9 +272,9 @@ def test_the_recording_draws_the_ring_as_its_triangles_where_the_scene_puts_it(r
     from scipy.spatial.transform import Rotation
 
     ring = trimesh.load(scene_file.parent / RING["file"], force="mesh")
-    vertices = np.array(_latest(recording, entity, "Mesh3D:vertex_positions"))
-    assert len(_latest(recording, entity, "Mesh3D:triangle_indices")) == len(ring.faces)
-    drawn = _placed(recording, entity, vertices)
+    vertices = np.array(latest_static(recording, entity, "Mesh3D:vertex_positions"))
+    assert len(latest_static(recording, entity, "Mesh3D:triangle_indices")) == len(ring.faces)
+    drawn = placed(recording, entity, vertices)
     truth = Rotation.from_euler("xyz", RING["rpy"], degrees=True).apply(ring.vertices) + RING["position"]
     assert np.allclose(drawn.min(axis=0), truth.min(axis=0), atol=1e-5)
     assert np.allclose(drawn.max(axis=0), truth.max(axis=0), atol=1e-5)
