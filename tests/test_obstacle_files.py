@@ -67,9 +67,9 @@ def test_a_file_outside_the_folder_is_refused_naming_it_and_the_folder(folders, 
     if how == "link-out":
         (scans / "innocent.xyz").symlink_to(secret)
     if how == "linked-folder-out":
-        (scans / "shared").symlink_to(secret.parent, target_is_directory=True)
+        (scans / "linked").symlink_to(secret.parent, target_is_directory=True)
     file = {"absolute": str(secret), "dot-dot": "../private/secret.txt", "link-out": "innocent.xyz",
-            "linked-folder-out": "shared/secret.txt", "mesh": str(secret)}[how]
+            "linked-folder-out": "linked/secret.txt", "mesh": str(secret)}[how]
     value = {**_scan(file), "type": "mesh"} if how == "mesh" else _scan(file)
     problem = _refused(value, scans)
     assert problem.status == 422 and problem.reason == "file-outside-scans"
