@@ -8,14 +8,13 @@ sensor's frame, the pose being the sensor's.
 
 A cloud is drawn with at most `MAX_POINTS` of its points (an even random choice, the same every time:
 a 300,000-point scan would cost the viewer more than it shows); NaN points (an organized cloud's holes)
-are left out. Formats: PCD (pypcd4), PLY, STL, OBJ, OFF, glTF/GLB, DAE (trimesh), XYZ text; LAS and E57
-scans are not drawn (said in the recording's log).
+are left out. Formats: PCD, PLY and XYZ text (`mesh.cloud_files`, as tdgen reads them), STL, OBJ, OFF,
+glTF/GLB, DAE (trimesh); LAS and E57 scans are not drawn (said in the recording's log).
 """
 from __future__ import annotations
 
 import hashlib
 import io
-import re
 from dataclasses import dataclass, field
 from pathlib import PurePosixPath
 from typing import Literal
@@ -23,9 +22,10 @@ from typing import Literal
 import numpy as np
 import rerun as rr
 
+from mesh.cloud_files import CloudFileError, read_cloud_bytes
+
 MAX_POINTS = 100_000
 POINT_RADIUS = rr.Radius.ui_points(2.0)  # on screen, whatever the zoom
-TEXT_CLOUDS = (".xyz", ".pts", ".txt", ".csv")
 MESH_FILES = (".stl", ".obj", ".ply", ".glb", ".gltf", ".off", ".dae")
 
 
@@ -49,6 +49,8 @@ def read_asset(kind: str, name: str, data: bytes, scale: float = 1.0, max_points
     drawing; ValueError naming what is wrong."""
     try:
         return _read(kind, name, data, scale, max_points)
+    except CloudFileError as e:
+        raise ValueError(f"{name}: {e}") from None
     except ValueError:
         raise
     except Exception as e:  # each library fails in its own way on a broken file
@@ -61,7 +63,7 @@ def _read(kind: str, name: str, data: bytes, scale: float, max_points: int) -> A
     h.update(f"|{kind}|{scale!r}".encode())
     digest = h.hexdigest()
     if kind == "points":
-        cloud = _cloud(suffix, data)
+        cloud = read_cloud_bytes(suffix, data)
         cloud = cloud[np.isfinite(cloud).all(axis=1)] * scale
         if not len(cloud):
             raise ValueError(f"{name}: no finite point")
@@ -95,32 +97,3 @@ def asset_archetype(asset: Asset, rgba: tuple[float, ...]) -> rr.Points3D | rr.M
         return rr.Points3D(asset.points, colors=[colour], radii=[POINT_RADIUS])  # type: ignore[arg-type]
     return rr.Mesh3D(vertex_positions=asset.vertices, triangle_indices=asset.triangles, vertex_normals=asset.normals,
                      albedo_factor=colour)
-
-
-def _cloud(suffix: str, data: bytes) -> np.ndarray:
-    if suffix == ".pcd":
-        from pypcd4 import PointCloud
-
-        cloud = PointCloud.from_fileobj(io.BytesIO(data))  # type: ignore[arg-type]  # any binary file object
-        return np.asarray(cloud.numpy(("x", "y", "z")), dtype=np.float64).reshape(-1, 3)
-    if suffix == ".ply":
-        import trimesh
-
-        loaded = trimesh.load(io.BytesIO(data), file_type="ply", process=False)
-        vertices = loaded.vertices  # type: ignore[attr-defined]  # a PointCloud or a Trimesh
-        return np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    if suffix in TEXT_CLOUDS:
-        return _text(data)
-    raise ValueError(f"{suffix or 'a file without extension'}: this cloud format is not drawn")
-
-
-def _text(data: bytes) -> np.ndarray:
-    """x y z first on each line; a header line and `#` comments skipped."""
-    rows = []
-    for line in data.decode(errors="replace").splitlines():
-        fields = [f for f in re.split(r"[\s,;]+", line.split("#", 1)[0].strip()) if f]
-        try:
-            rows.append([float(f) for f in fields[:3]])
-        except ValueError:
-            continue
-    return np.array([r for r in rows if len(r) == 3], dtype=float).reshape(-1, 3)

@@ -17,9 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
+from mesh.cloud_files import SUFFIXES as CLOUD_FILES
+from mesh.cloud_files import CloudFileError, read_cloud_bytes
 from tdgen.robot.errors import SceneError
 
-CLOUD_SUFFIXES = (".pcd", ".ply", ".xyz", ".pts", ".txt", ".csv", ".las", ".laz", ".e57")
+CLOUD_SUFFIXES = (*CLOUD_FILES, ".las", ".laz", ".e57")
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".glb", ".gltf", ".off", ".dae")
 LARGEST_EXTENT = 100.0  # m: a scan wider than this is taken for millimetres given as metres
 
@@ -107,42 +109,12 @@ def _readable(path: Path) -> None:
         raise SceneError(f"{path}: the file is empty")
 
 
-def _pcd(path: Path) -> np.ndarray:
-    from pypcd4 import PointCloud
-
-    cloud = PointCloud.from_path(path)
-    missing = [f for f in "xyz" if f not in cloud.fields]
-    if missing:
-        raise SceneError(f"{path}: the PCD file has no {'/'.join(missing)} field (fields: {', '.join(cloud.fields)})")
-    return cloud.numpy(("x", "y", "z"))
-
-
-def _ply(path: Path) -> np.ndarray:
-    import trimesh
-
-    loaded = trimesh.load(str(path), process=False)
-    return np.asarray(loaded.vertices)  # type: ignore[attr-defined]  # a PointCloud or a Trimesh
-
-
-def _text(path: Path) -> np.ndarray:
-    """Plain XYZ text: x y z first on each line (spaces, commas or semicolons), more columns ignored,
-    a header line and `#` comments skipped."""
-    import re
-
-    rows = []
-    for line in path.read_text(errors="replace").splitlines():
-        fields = [f for f in re.split(r"[\s,;]+", line.split("#", 1)[0].strip()) if f]
-        if not fields:
-            continue
-        try:
-            rows.append([float(f) for f in fields[:3]])
-        except ValueError:
-            if rows:  # a header is the first line, not one in the middle
-                raise SceneError(f"{path}: line {line[:60]!r} is not x y z numbers") from None
-            continue
-        if len(rows[-1]) != 3:
-            raise SceneError(f"{path}: line {line[:60]!r} has fewer than 3 numbers")
-    return np.array(rows).reshape(-1, 3)
+def _cloud_file(path: Path) -> np.ndarray:
+    """PCD, PLY or XYZ text, read as the recorder reads them (`mesh.cloud_files`)."""
+    try:
+        return read_cloud_bytes(path.suffix.lower(), path.read_bytes())
+    except CloudFileError as e:
+        raise SceneError(f"{path}: {e}") from None
 
 
 def _las(path: Path) -> np.ndarray:
@@ -164,5 +136,4 @@ def _e57(path: Path) -> np.ndarray:
     return np.vstack([np.column_stack([s["cartesianX"], s["cartesianY"], s["cartesianZ"]]) for s in scans])
 
 
-_CLOUD_READERS = {".pcd": _pcd, ".ply": _ply, ".xyz": _text, ".pts": _text, ".txt": _text, ".csv": _text,
-                  ".las": _las, ".laz": _las, ".e57": _e57}
+_CLOUD_READERS = {**{suffix: _cloud_file for suffix in CLOUD_FILES}, ".las": _las, ".laz": _las, ".e57": _e57}
