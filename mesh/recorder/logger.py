@@ -63,11 +63,12 @@ CLOSING_GRACE = 0.25  # s of listening after a stop, for publications still in f
 
 
 class Message(NamedTuple):
-    """A queued message: a Zenoh sample (`key` is its key expression), a join/leave/notice, the
+    """A queued message: a Zenoh sample (`key` is its key expression), a property value the fetcher
+    read ("read", stamped when it was asked for), a join/leave/notice, the
     scene a world Thing describes (`key` is its name, `payload` a JSON `SceneFiles`), or what a robot
     Thing links (`payload` a `RobotFiles` or a parsed `DrawnWorkspace`)."""
 
-    kind: str  # "sample" | "join" | "leave" | "notice" | "scene" | "robot" | "workspace"
+    kind: str  # "sample" | "read" | "join" | "leave" | "notice" | "scene" | "robot" | "workspace"
     key: str  # the sample's key; the Thing's name for join/leave/scene/robot/workspace
     payload: bytes | str | Any
     time: float  # seconds since the epoch
@@ -260,12 +261,13 @@ class _Fetcher(threading.Thread):
             if prop.writeOnly or self._halt.is_set():
                 continue
             key = self.keys.property(thing, name)
+            asked = time.time()
             try:
                 reply = self.client.request(key, thing=thing)
             except Problem as e:
                 self.put(Message("notice", "", f"could not read {thing}/{name}: {e}", time.time()))
                 continue
-            self.put(Message("sample", key, reply.payload, time.time()))
+            self.put(Message("read", key, reply.payload, asked))
         if twin is not None:
             self.fetch_workspace(thing, td, twin)
 
@@ -341,6 +343,7 @@ class _Writer(threading.Thread):
         self._joints_suffix = f"/properties/{JOINTS_PROPERTY}"
         self._styled: set[str] = set()  # entity paths whose static style is logged
         self._layout = b""  # what the blueprint last sent was made from
+        self._published: dict[str, float] = {}  # key -> time of its latest publication written
 
     def run(self) -> None:
         last_flush = time.monotonic()
@@ -373,6 +376,12 @@ class _Writer(threading.Thread):
                 self.log_entries(mapping.notice_entries(f"could not record {what}: {e}"))
 
     def write(self, message: Message) -> None:
+        if message.kind == "read":  # a value read while a change was published may arrive after it
+            if self._published.get(message.key, float("-inf")) >= message.time:
+                return  # a publication since the read was asked is the newer value
+            message = message._replace(kind="sample")
+        elif message.kind == "sample":
+            self._published[message.key] = max(message.time, self._published.get(message.key, message.time))
         try:
             if self.draw(message):
                 return
