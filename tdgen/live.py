@@ -12,7 +12,7 @@ itself (its table removed) needs a generation. The flags are those a generation 
 """
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, OrderedDict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,9 +20,9 @@ import msgspec
 import numpy as np
 
 from tdgen.robot import points_csv
-from tdgen.robot.collision import CollisionWorld
+from tdgen.robot.collision import CollisionWorld, body_names
 from tdgen.robot.model import Robot
-from tdgen.robot.surroundings import Body, Surroundings
+from tdgen.robot.surroundings import Body, Surroundings, content_key
 from tdgen.sampling import Samples, random_configurations
 
 if TYPE_CHECKING:
@@ -43,6 +43,17 @@ def _key(body: Body) -> bytes:
     return msgspec.json.encode(body)
 
 
+def _added(base: Surroundings, scene: Surroundings) -> list[tuple[int, Body]]:
+    """The bodies of `scene` not in `base` (as multisets, `changed_bodies`), each with its place in `scene`."""
+    left, out = Counter(map(_key, base.bodies)), []
+    for k, body in enumerate(scene.bodies):
+        if left[_key(body)] > 0:
+            left[_key(body)] -= 1
+        else:
+            out.append((k, body))
+    return out
+
+
 def _take(bodies: list[Body], wanted: Counter[bytes]) -> list[Body]:
     left, out = Counter(wanted), []
     for body in bodies:
@@ -52,20 +63,33 @@ def _take(bodies: list[Body], wanted: Counter[bytes]) -> list[Body]:
     return out
 
 
-class Worlds:
-    """The collision worlds a robot's live updates ask, kept between updates (loading the robot and the
-    room each time would be on every update's way): one with only the body being checked, without self-collision
-    (`touching`), one of the whole scene now and one of the base (which pairs collide, for the TD's
-    warnings)."""
+KEPT = 16  # bodies whose answers a robot's worlds keep (a scan added again, a box put back)
 
-    def __init__(self, robot: Robot, base: Surroundings):
-        self.robot, self.base = robot, base
+
+class _Answers:
+    """What is known of one body against the base samples: per sample, touching or not (-1: not asked
+    yet), and the pairs that collide with it where asked."""
+
+    def __init__(self, samples: int):
+        self.touching = np.full(samples, -1, dtype=np.int8)
+        self.pairs: dict[int, list[str]] = {}
+
+
+class Worlds:
+    """The collision worlds a robot's live updates ask and what they answered, kept between updates: one
+    world with only the body being checked, without self-collision (`part`), one of the base (which pairs
+    collide there, for the TD's warnings). Answers are kept per body and its file's content (`KEPT` of
+    them): a scan added again, or a box put back where it was, asks no world."""
+
+    def __init__(self, robot: Robot, base: Surroundings, q: np.ndarray):
+        """`q`: the base samples' configurations, which every question names by row."""
+        self.robot, self.base, self.q = robot, base, q
         self._part: CollisionWorld | None = None
-        self._whole: CollisionWorld | None = None
         self._base: CollisionWorld | None = None
         self._base_pairs: dict[int, list[str]] = {}
         self._at_rest: list[str] | None = None
-        self._part_model: tuple[bytes, FastCollision] | None = None  # the part world's, for the bodies it holds
+        self._part_model: tuple[bytes, FastCollision] | None = None  # the part world's, for the body it holds
+        self._answers: OrderedDict[bytes, _Answers] = OrderedDict()
 
     def part(self, bodies: list[Body]) -> CollisionWorld:
         if self._part is None:
@@ -73,32 +97,52 @@ class Worlds:
         self._part.set_bodies(bodies)
         return self._part
 
-    def touching(self, bodies: list[Body], q: np.ndarray, model: str = "fast") -> np.ndarray:
-        """`touching` in the part world holding `bodies`, its fast model kept while it holds them: an update
-        asks it for the samples and again for its warnings (a scan's model is thousands of pieces)."""
-        world = self.part(bodies)
-        if model == "exact" or not len(q) or not bodies:
-            return touching(world, q, model)
-        held = msgspec.json.encode(bodies)
-        if self._part_model is None or self._part_model[0] != held:
-            from tdgen.robot.fast_collision import FastCollision
+    def _of(self, body: Body) -> _Answers:
+        key = content_key(body)
+        held = self._answers.get(key)
+        if held is None:
+            held = self._answers[key] = _Answers(len(self.q))
+            while len(self._answers) > KEPT:
+                self._answers.popitem(last=False)
+        self._answers.move_to_end(key)
+        return held
 
-            self._part_model = (held, FastCollision(world))
-        return self._part_model[1].colliding(q)
+    def touching(self, body: Body, rows: np.ndarray, model: str = "fast") -> tuple[np.ndarray, int]:
+        """Which of the base samples `rows` touch `body` (`touching`), and how many were checked: only rows
+        not asked before, in the part world holding it, whose fast model is kept while it holds the body (an
+        update asks for the samples, then for its warnings; a scan's model is thousands of pieces)."""
+        answers = self._of(body)
+        ask = rows[answers.touching[rows] < 0]
+        if len(ask):
+            world = self.part([body])
+            if model == "exact":
+                hit = touching(world, self.q[ask], model)
+            else:
+                held = content_key(body)
+                if self._part_model is None or self._part_model[0] != held:
+                    from tdgen.robot.fast_collision import FastCollision
 
-    def whole(self, scene: Surroundings) -> CollisionWorld:
-        if self._whole is None:
-            self._whole = CollisionWorld(self.robot, scene)
-        else:
-            self._whole.set_bodies(scene.bodies)
-        return self._whole
+                    self._part_model = (held, FastCollision(world))
+                hit = self._part_model[1].colliding(self.q[ask])
+            answers.touching[ask] = hit
+        return answers.touching[rows] == 1, len(ask)
 
-    def base_pairs(self, row: int, q: np.ndarray) -> list[str]:
-        """What collides in sample `row` (configuration q) in the base scene, asked once."""
+    def pairs_with(self, body: Body, rows: np.ndarray) -> list[list[str]]:
+        """What collides with `body` alone in each of the base samples `rows` (`CollisionWorld.what_collides`,
+        the body named as a scene of it alone names it)."""
+        answers = self._of(body)
+        ask = [int(row) for row in rows if int(row) not in answers.pairs]
+        if ask:
+            world = self.part([body])
+            answers.pairs |= {row: world.what_collides(self.q[row]) for row in ask}
+        return [answers.pairs[int(row)] for row in rows]
+
+    def base_pairs(self, row: int) -> list[str]:
+        """What collides in sample `row` in the base scene, asked once."""
         if row not in self._base_pairs:
             if self._base is None:
                 self._base = CollisionWorld(self.robot, self.base)
-            self._base_pairs[row] = self._base.what_collides(q)
+            self._base_pairs[row] = self._base.what_collides(self.q[row])
         return self._base_pairs[row]
 
     def at_rest(self) -> list[str]:
@@ -109,10 +153,10 @@ class Worlds:
         return self._at_rest
 
     def close(self) -> None:
-        for world in (self._part, self._whole, self._base):
+        for world in (self._part, self._base):
             if world is not None:
                 world.close()
-        self._part = self._whole = self._base = None
+        self._part = self._base = None
         self._part_model = None
 
 
@@ -141,7 +185,7 @@ class LiveSamples:
         self.scene = scene or base
         self.base_samples = samples
         self.touches = touches or {}
-        self.worlds = worlds or Worlds(robot, base)
+        self.worlds = worlds or Worlds(robot, base, samples.q)
         collision = samples.collision.copy()
         for rows in self.touches.values():
             collision[rows] = True
@@ -179,52 +223,60 @@ class LiveSamples:
             if key in self.touches:
                 touches[key] = self.touches[key]
                 continue
-            hit = self.worlds.touching([body], self.base_samples.q[base_free], self.model)
+            hit, asked = self.worlds.touching(body, base_free, self.model)
             touches[key] = base_free[hit]
-            checked += len(base_free)
+            checked += asked
         live = LiveSamples(self.robot, self.base, self.base_samples, self.base_flags, self.model, scene, touches,
                            self.worlds)
         return live, checked
 
     def warnings(self) -> list[str]:
-        """`tdgen.generate.collision_warnings` of the samples in their scene. What collides in a sample is
-        asked of the kept whole-scene world only where the added bodies can change it (a sample that
-        collides because of them, or that collided in the base and touches them); elsewhere it is what
-        collided in the base (kept from the first update on)."""
-        from tdgen.generate import BY_DESIGN, PAIR_SAMPLES, collision_warnings
+        """`tdgen.generate.collision_warnings` of the samples in their scene (`pairs`)."""
+        from tdgen.generate import BY_DESIGN, collision_warnings
 
         if float(self.samples.collision.mean()) < BY_DESIGN:
             return []
-        q = self.base_samples.q
+        return collision_warnings(self.robot, self.scene, self.samples, self.worlds.at_rest(), self.pairs())
+
+    def pairs(self) -> list[list[str]]:
+        """What collides in each of the first `PAIR_SAMPLES` colliding samples, as a world of the whole scene
+        names it: what collided in the base (kept from the first update on; nothing, in a sample free there),
+        and what collides with each added body the sample touches, asked of a world holding that body alone
+        (a scan is never built into a world of the whole scene, and its answers are kept with it)."""
+        from tdgen.generate import PAIR_SAMPLES
+
         rows = np.flatnonzero(self.samples.collision)[:PAIR_SAMPLES]
-        before = self.base_samples.collision[rows]
-        kept, stale = rows[before], rows[~before]
-        added = changed_bodies(self.base, self.scene)[1]
-        if added and len(kept):
-            hit = self.worlds.touching(added, q[kept], self.model)
-            kept, stale = kept[~hit], np.concatenate([stale, kept[hit]])
-        found = {int(i): self.worlds.base_pairs(int(i), q[i]) for i in kept}
-        if len(stale):
-            whole = self.worlds.whole(self.scene)
-            found |= {int(i): whole.what_collides(q[i]) for i in stale}
-        return collision_warnings(self.robot, self.scene, self.samples, self.worlds.at_rest(),
-                                  [found[int(i)] for i in rows])
+        found = [list(self.worlds.base_pairs(int(i))) if self.base_samples.collision[i] else [] for i in rows]
+        names = body_names(self.scene)
+        for place, body in _added(self.base, self.scene):
+            alone = body.name or "body 0"
+            hit, _ = self.worlds.touching(body, rows, self.model)
+            touched = np.flatnonzero(hit)
+            for at, pairs in zip(touched, self.worlds.pairs_with(body, rows[touched])):
+                for pair in pairs:
+                    link, _, other = pair.rpartition(" / ")
+                    pair = f"{link} / {names[place]}" if other == alone else pair
+                    if pair not in found[at]:
+                        found[at].append(pair)
+        return found
 
     def prepare(self) -> None:
         """Load the kept worlds, hash the samples and ask what collides in the base's first samples now,
-        between updates, so that the first update does not wait for them."""
+        between updates, so that the first update does not wait for them (nor for the module that makes a
+        scan's distance field)."""
+        from scipy import ndimage  # noqa: F401 - imported once here, not in the first scan's update
+
         from tdgen.generate import PAIR_SAMPLES
 
         self.base_flags.samples_sha  # noqa: B018 - hashed once here, not in the first update's digest
         for row in np.flatnonzero(self.base_samples.collision)[:PAIR_SAMPLES]:
-            self.worlds.base_pairs(int(row), self.base_samples.q[row])
+            self.worlds.base_pairs(int(row))
         self.worlds.at_rest()
         part = self.worlds.part([])
         if self.model == "fast":  # the robot's spheres for a world of parts, fitted once per robot
             from tdgen.robot.fast_collision import FastCollision
 
             FastCollision(part)
-        self.worlds.whole(self.scene)
 
     def close(self) -> None:
         self.worlds.close()

@@ -242,3 +242,89 @@ def test_the_scans_shortcut_clears_no_sample_that_touches_it(scan_alone):
     assert cleared.sum() > 0.5 * (~exact).sum()  # it does spare the compiled check most of the free ones
     assert not any(truth.touches(0.005, q) for q in qs[cleared])
     assert np.array_equal(fast.colliding(qs), exact)
+
+
+def test_a_distance_field_cut_to_where_a_robot_reaches_puts_no_place_further_than_it_is(scan_alone):
+    """A field made only around the robot (`within`) is a lower bound everywhere, also beyond that region
+    (where nothing may be cleared: the boxes cut away are not in it), and still clears places in it."""
+    from tdgen.robot.scan_bodies import clearance, scan_of
+
+    _, world, _ = scan_alone
+    scan = scan_of(world._pb, world.client, next(iter(world._scene_names)))
+    assert scan is not None
+    region = (np.array([-0.8, -0.9, 0.1]), np.array([0.7, 0.8, 1.2]))  # cuts the floor and the wall
+    field = clearance(scan, region)
+    assert field.centres.size < clearance(scan).centres.size
+    low, high = scan.boxes[:, 0].min(axis=0), scan.boxes[:, 1].max(axis=0)
+    points = np.random.default_rng(10).uniform(low - 0.5, high + 0.5, (6_000, 3))
+    points[:600] = scan.boxes[:600 // 2, 0].repeat(2, axis=0)[:600] + 1e-4  # some just inside a box
+    true, said = _box_distance(points, scan.boxes), field.distance(points)
+    assert np.all(said <= true + 1e-6), f"{np.max(said - true):.4f} m more than the truth"
+    inside = np.all((points > region[0] + 0.1) & (points < region[1] - 0.1), axis=1)
+    away = inside & (true > 0.2)
+    assert away.sum() > 50 and np.mean(said[away] > 0.05) > 0.99
+
+
+@pytest.fixture(scope="module")
+def live_scan(scanned_world):
+    """The UR10's samples generated on its table alone, then the scan added live."""
+    from tdgen.live import LiveSamples
+    from tdgen.robot import points_csv
+    from tdgen.sampling import sample_workspace
+
+    robot, scene, _, _ = scanned_world
+    base = msgspec.structs.replace(scene, bodies=scene.bodies[:1])
+    generated = sample_workspace(robot, base, 2000, seed=2)
+    live = LiveSamples(robot, base, generated,
+                       points_csv.encode(robot, generated.positions, generated.collision, generated.q))
+    yield live
+    live.close()
+
+
+def test_a_scan_added_live_names_what_collides_as_a_world_of_the_whole_scene_does(scanned_world, live_scan):
+    """The TD's warnings count what collides in the first colliding samples: asked of the base and of the
+    scan alone, it is what a world holding both says, the scan named as the scene names it."""
+    from tdgen.generate import PAIR_SAMPLES
+
+    robot, scene, world, _ = scanned_world
+    live, _ = live_scan.rescene(scene)
+    rows = np.flatnonzero(live.samples.collision)[:PAIR_SAMPLES]
+    said = live.pairs()
+    assert any(pair.endswith("/ scan") for pairs in said for pair in pairs)
+    assert [sorted(p) for p in said] == [sorted(world.what_collides(q)) for q in live.base_samples.q[rows]]
+
+
+def test_the_same_scan_added_again_is_answered_without_a_check(scanned_world, live_scan):
+    robot, scene, _, _ = scanned_world
+    first, checked = live_scan.rescene(scene)
+    crate = BoxBody(name="crate", size=(0.2, 0.2, 0.2), position=(0.5, 0.3, 0.7))
+    boxed, _ = live_scan.rescene(msgspec.structs.replace(scene, bodies=[scene.bodies[0], crate]))
+    again, checked_again = boxed.rescene(msgspec.structs.replace(boxed.scene, bodies=scene.bodies))
+    assert checked_again == 0 and np.array_equal(again.samples.collision, first.samples.collision)
+    assert again.pairs() == first.pairs()
+
+
+def test_a_scan_written_again_under_its_name_is_checked_anew(scanned_world, tmp_path):
+    """Answers are kept by the file's content: a newer cloud in the same file is another body."""
+    from tdgen.live import LiveSamples
+    from tdgen.robot import points_csv
+    from tdgen.sampling import sample_workspace
+
+    robot, scene, _, _ = scanned_world
+    base = msgspec.structs.replace(scene, bodies=scene.bodies[:1])
+    generated = sample_workspace(robot, base, 500, seed=4)
+    live = LiveSamples(robot, base, generated,
+                       points_csv.encode(robot, generated.positions, generated.collision, generated.q))
+    try:
+        cloud = tmp_path / "latest.xyz"
+        near = "".join(f"{0.4 + x / 20} {y / 20 - 0.5} {z / 20 + 0.6}\n" for x in range(8) for y in range(20)
+                       for z in range(12))
+        cloud.write_text(near)  # a block beside the robot, on its table
+        body = PointsBody(name="camera", file=str(cloud))
+        with_near, _ = live.rescene(msgspec.structs.replace(base, bodies=[*base.bodies, body]))
+        assert with_near.samples.collision.sum() > generated.collision.sum()
+        cloud.write_text("9.0 9.0 9.0\n9.1 9.0 9.0\n")  # out of reach now
+        with_far, checked = live.rescene(msgspec.structs.replace(base, bodies=[*base.bodies, body]))
+        assert checked > 0 and np.array_equal(with_far.samples.collision, generated.collision)
+    finally:
+        live.close()

@@ -17,7 +17,7 @@ import numpy as np
 
 from tdgen.robot.errors import RobotError
 from tdgen.robot.model import Robot
-from tdgen.robot.surroundings import Body, Surroundings, build_into
+from tdgen.robot.surroundings import Body, Surroundings, build_into, content_key
 
 CONTACT_TOLERANCE = 1e-4  # m: contacts shallower than this are touching, not colliding
 
@@ -38,6 +38,7 @@ class CollisionWorld:
         try:
             ids = build_into(scene, self.client)
             self._ids = ids
+            self._held_as = dict(zip(ids, map(content_key, scene.bodies)))  # what each was built from (`set_bodies`)
             self._scene_names = _names(ids, scene)
             self.body = robot.load_into(self.client, scene.robot.position, math.radians(scene.robot.yaw),
                                         base_orientation=scene.robot.quaternion(),
@@ -78,13 +79,14 @@ class CollisionWorld:
 
     def set_bodies(self, bodies: list[Body]) -> None:
         """Make the scene's bodies `bodies`, the robot where it stands: bodies gone are removed, new ones
-        built, the rest kept (a live update changes a box without loading the robot and the room again)."""
+        built, the rest kept (a live update changes a box without loading the robot and the room again); a
+        scan or mesh whose file's content changed is a new one (`content_key`)."""
         import msgspec
 
         held: dict[bytes, list[int]] = {}
-        for body, i in zip(self.scene.bodies, self._ids):
-            held.setdefault(msgspec.json.encode(body), []).append(i)
-        wanted = [msgspec.json.encode(body) for body in bodies]
+        for i in self._ids:
+            held.setdefault(self._held_as[i], []).append(i)
+        wanted = [content_key(body) for body in bodies]
         kept = [held[key].pop() if held.get(key) else None for key in wanted]
         for gone in held.values():  # first: a scan replacing a scan is not quieted against it (`build_into`)
             for i in gone:
@@ -92,6 +94,7 @@ class CollisionWorld:
         ids = [i if i is not None else build_into(msgspec.structs.replace(self.scene, bodies=[body]), self.client)[0]
                for body, i in zip(bodies, kept)]
         self.scene = msgspec.structs.replace(self.scene, bodies=list(bodies))
+        self._held_as = dict(zip(ids, wanted))
         self._ids, self._scene_names = ids, _names(ids, self.scene)
         self._allowed_bodies = self._allowed_body_pairs(ids, self.part)
 

@@ -296,6 +296,10 @@ class SphereModel:
         return int(self.verdicts_here(np.asarray(q, dtype=float)[None])[0])
 
 
+REACH_POSES = 2000  # random configurations that show where a robot's links reach (`ScanClearance.reach`)
+REACH_MARGIN = 0.1  # m beyond that which a scan's distance field covers
+
+
 class ScanClearance:
     """The configurations a world of scans alone surely does not touch, found in a few numpy steps: each
     link's spheres looked up in the scans' distance fields (`scan_bodies.clearance`), the sphere around
@@ -315,7 +319,23 @@ class ScanClearance:
         scans = [scan_of(world._pb, world.client, body) for body in world._scene_names]
         if any(scan is None for scan in scans):
             return None
-        return cls(model, [clearance(scan) for scan in scans if scan is not None])
+        within = cls.reach(world, model)
+        return cls(model, [clearance(scan, within) for scan in scans if scan is not None])
+
+    @staticmethod
+    def reach(world: CollisionWorld, model: SphereModel) -> tuple[np.ndarray, np.ndarray]:
+        """A box around what the robot's links reach where it stands, as far as `REACH_POSES` random
+        configurations show (and `REACH_MARGIN` more): a field need not be made further out. An estimate is
+        enough: a sphere beyond the box is never cleared, so a box too small costs time, not safety."""
+        robot, t = world.robot, model.tables
+        q = np.random.default_rng(0).uniform(robot.lows(), robot.highs(), (REACH_POSES, len(robot.joints)))
+        rot, pos = model.frames.frames(q)
+        centres = np.einsum("nkij,kj->nki", rot, t.bound_c) + pos  # each link's sphere around its spheres
+        base = np.asarray(world.scene.robot.position, dtype=float)
+        meets = np.asarray(t.scene_links, dtype=bool)
+        far = np.linalg.norm(centres[:, meets] - base, axis=2) + t.bound_r[meets]
+        radius = float(far.max(initial=0.0)) + REACH_MARGIN
+        return base - radius, base + radius
 
     def clear(self, q: np.ndarray) -> np.ndarray:
         """(N, n) main-joint values -> (N,) bool: surely touching no scan."""

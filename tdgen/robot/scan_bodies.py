@@ -49,7 +49,7 @@ class Prepared:
     seconds: float = 0.0  # to read and prepare (or take from the cache)
     cached: bool = False
     key: str = ""  # its cache key: what a body built from it is marked with (`build`)
-    field: Clearance | None = None  # voxels: the distance field of its boxes, made at its first use (`clearance`)
+    fields: dict[tuple, Clearance] = field(default_factory=dict)  # voxels: its distance fields by region (`clearance`)
     lists: list[tuple[list, list]] | None = None  # the parts as pybullet takes them, made at the first `build`
 
 
@@ -314,18 +314,31 @@ class Clearance:
         return self.centres[at[..., 0], at[..., 1], at[..., 2]] - self.cell * np.sqrt(3.0)
 
 
-def clearance(prepared: Prepared) -> Clearance:
-    """The distance field of a scan's padded boxes, made once per scan (held with it): every cell that
-    any box reaches into is occupied, and each cell gets its chessboard distance (in cells, times the
-    cell) to the nearest occupied one, which is never more than the Euclidean one between their centres.
+def clearance(prepared: Prepared, within: tuple[np.ndarray, np.ndarray] | None = None) -> Clearance:
+    """The distance field of a scan's padded boxes, made once per scan and region (held with it): every
+    cell that any box reaches into is occupied, and each cell gets its chessboard distance (in cells, times
+    the cell) to the nearest occupied one, which is never more than the Euclidean one between their centres.
     scipy's chamfer transform makes it several times quicker than its exact Euclidean one, and clears
-    nearly as many samples: a link's spheres near the scan are near it by either measure."""
-    if prepared.field is not None:
-        return prepared.field
-    from scipy.ndimage import distance_transform_cdt
+    nearly as many samples: a link's spheres near the scan are near it by either measure.
 
+    `within` (low, high corners, scene frame): the only region asked about (where a robot reaches): the
+    grid ends there, each box pulled in onto it (no nearer to a place inside than it was), and the grid's
+    outer layer on a side where boxes were cut is occupied, so that a place beyond the region is never
+    cleared. Only what is asked gets quicker; what is answered stays a lower bound everywhere."""
     lo, hi = prepared.boxes[:, 0], prepared.boxes[:, 1]
     low, high = lo.min(axis=0), hi.max(axis=0)
+    cut_low = cut_high = np.zeros(3, dtype=bool)
+    if within is not None:
+        w_lo, w_hi = (np.asarray(v, dtype=float) for v in within)
+        if np.all(np.maximum(low, w_lo) < np.minimum(high, w_hi)):  # else the whole scan: it lies beyond the region
+            cut_low, cut_high = low < w_lo, high > w_hi
+            lo, hi = np.clip(lo, w_lo, w_hi), np.clip(hi, w_lo, w_hi)
+            low, high = np.maximum(low, w_lo), np.minimum(high, w_hi)
+    key = (*np.round(low, 4), *np.round(high, 4), *cut_low, *cut_high)
+    if key in prepared.fields:
+        return prepared.fields[key]
+    from scipy.ndimage import distance_transform_cdt
+
     cell = max(FIELD_CELL, float(np.cbrt(np.prod(high - low + 2 * FIELD_CELL) / FIELD_CELLS)) * 1.01)
     origin = low - cell  # a free layer all round: the field is measured from inside the grid
     shape = np.floor((high - origin) / cell).astype(np.int64) + 2
@@ -334,9 +347,16 @@ def clearance(prepared: Prepared) -> Clearance:
     free = np.ones(tuple(shape), dtype=bool)
     for (a, b, c), (x, y, z) in zip(first, last):
         free[a:x, b:y, c:z] = False
+    for axis in range(3):  # beyond a cut side: never cleared
+        if cut_low[axis]:
+            free[(slice(None),) * axis + (0,)] = False
+        if cut_high[axis]:
+            free[(slice(None),) * axis + (-1,)] = False
     steps = distance_transform_cdt(free, metric="chessboard")  # exact for this metric: 26 neighbours, each 1
-    prepared.field = Clearance(origin, cell, (steps * cell).astype(np.float32))
-    return prepared.field
+    centres = steps.astype(np.float32)
+    centres *= np.float32(cell)
+    prepared.fields[key] = Clearance(origin, cell, centres)
+    return prepared.fields[key]
 
 
 def scan_of(pb, client: int, body: int) -> Prepared | None:

@@ -342,6 +342,14 @@ def _quiet_static_pairs(client: int, new: list[int]) -> None:
                         pb.setCollisionFilterPair(a, b, la, lb, 0, physicsClientId=client)
 
 
+def content_key(body: Body) -> bytes:
+    """What a body is as collision geometry: its description and, for a scan or mesh, its file's content (a
+    newer scan written under the same name is another body), for what is kept per body between scene changes."""
+    if isinstance(body, FileBody):
+        return msgspec.json.encode(body) + prepare(body).key.encode()
+    return msgspec.json.encode(body)
+
+
 def prepare(body: "MeshBody | PointsBody"):
     """A mesh or scan body read and made into collision pieces (`scan_bodies.Prepared`), cached."""
     from tdgen.robot.scan_bodies import prepare_mesh, prepare_points
