@@ -33,6 +33,7 @@ from tdgen.robot.cores import (
 )
 from tdgen.robot.link_frames import LinkFrames
 from tdgen.robot.model import Robot
+from tdgen.robot.scan_bodies import fast_boxes
 from tdgen.robot.sphere_kernel import COLLIDES, FREE, UNSURE
 from tdgen.robot.spheres import PAD, SURE_DEPTH, Convex, cover, link_elements, outer_planes, scene_elements, within
 
@@ -87,6 +88,35 @@ def _robot_part(world: CollisionWorld) -> tuple:
     return per_robot[key]
 
 
+def _element_tables(elements: list[Convex]) -> dict[str, np.ndarray]:
+    """One body's elements as the scene tables' rows (`SphereModel._scene_tables`)."""
+    outside = [outer_planes(e) for e in elements]
+    corners, counts = _stacked([e.points for e in elements], (3,))
+    inside, inside_counts = _stacked([e.inner_points() for e in elements], (3,))
+    return {"el_points": corners, "el_np": counts, "el_in": inside, "el_in_n": inside_counts,
+            "el_outer": _planes(outside), "el_outer_n": np.array([len(p) for p in outside], dtype=np.int64),
+            "el_inner": _planes([e.planes for e in elements]),
+            "el_inner_n": np.array([len(e.planes) for e in elements], dtype=np.int64)}
+
+
+def _box_tables(corners: np.ndarray, planes: np.ndarray) -> dict[str, np.ndarray]:
+    """A scan's boxes (`scan_bodies.fast_boxes`) as `_element_tables` makes them of `Convex(corners, planes,
+    outside=planes)` each, without making them one by one."""
+    eight, six = np.full(len(corners), 8, dtype=np.int64), np.full(len(corners), 6, dtype=np.int64)
+    corners, planes = np.ascontiguousarray(corners, dtype=float), np.ascontiguousarray(planes, dtype=float)
+    return {"el_points": corners, "el_np": eight, "el_in": corners, "el_in_n": eight,
+            "el_outer": planes, "el_outer_n": six, "el_inner": planes, "el_inner_n": six}
+
+
+def _widened(rows: np.ndarray, width: int, repeat: bool) -> np.ndarray:
+    """(E, W, D) -> (E, width, D): padded with zeros, or (`repeat`) with each element's first row."""
+    if rows.shape[1] == width:
+        return rows
+    fill = np.repeat(rows[:, :1], width - rows.shape[1], axis=1) if repeat and rows.shape[1] else \
+        np.zeros((len(rows), width - rows.shape[1], rows.shape[2]))
+    return np.concatenate([rows, fill], axis=1)
+
+
 GROUP_CELL = 0.3  # m: scene elements are grouped by the cell of this size their centre is in (the broad phase)
 
 
@@ -120,12 +150,17 @@ class SphereModel:
         self.slot_of = slot_of
         self._still = np.zeros(len(slot_of) + len(robot_tables["pairs"]))  # no growth (`verdicts_here`)
         links = list(slot_of)
-        items = [(b, e) for b in world._scene_names for e in scene_elements(pb, client, b)]
-        element_body = np.array([b for b, _ in items], dtype=int)
-        allowed = np.ones((len(links), len(items)), dtype=bool)
+        parts, element_body = [], []
+        for b in world._scene_names:
+            boxes = fast_boxes(pb, client, b)  # a scan's thousands of boxes: as arrays, not one by one
+            part = _box_tables(*boxes) if boxes is not None else _element_tables(scene_elements(pb, client, b))
+            parts.append(part)
+            element_body += [b] * len(part["el_np"])
+        element_body_ids = np.array(element_body, dtype=int)
+        allowed = np.ones((len(links), len(element_body_ids)), dtype=bool)
         for link, other in world._allowed_bodies:
-            allowed[slot_of[link], element_body == other] = False
-        scene_tables = self._scene_tables([e for _, e in items])
+            allowed[slot_of[link], element_body_ids == other] = False
+        scene_tables = self._scene_tables(parts)
         self.tables: kernel.Tables = kernel.as_tables({**robot_tables, **scene_tables, "touches": allowed})
 
     @classmethod
@@ -204,17 +239,21 @@ class SphereModel:
                 "link_hulls": link_hulls, "link_nh": np.array([len(h) for h in per_link], dtype=np.int64)} | tables
 
     @staticmethod
-    def _scene_tables(elements: list[Convex]) -> dict[str, np.ndarray]:
-        outside = [outer_planes(e) for e in elements]
-        corners, counts = _stacked([e.points for e in elements], (3,))
+    def _scene_tables(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+        """The scene's elements, body by body (`_element_tables`, `_box_tables`), as one set of tables: each
+        body's widened to the widest (points padded with zeros past their count, half-spaces by repeating one)."""
+        out: dict[str, np.ndarray] = {}
+        for name, pad_by_repeat in (("el_points", False), ("el_in", False), ("el_outer", True), ("el_inner", True)):
+            width = max([p[name].shape[1] for p in parts] + [1])
+            out[name] = np.concatenate([_widened(p[name], width, pad_by_repeat) for p in parts]
+                                       or [np.zeros((0, width, 4 if pad_by_repeat else 3))])
+        for name in ("el_np", "el_in_n", "el_outer_n", "el_inner_n"):
+            out[name] = np.concatenate([p[name] for p in parts] or [np.zeros(0, dtype=np.int64)]).astype(np.int64)
+        corners, counts = out["el_points"], out["el_np"]
         held = (np.arange(corners.shape[1]) < counts[:, None])[..., None]  # the padding left out
         centres = (np.where(held, corners, np.inf).min(axis=1) + np.where(held, corners, -np.inf).max(axis=1)) / 2
         radii = np.where(held[..., 0], np.linalg.norm(corners - centres[:, None], axis=2), 0.0).max(axis=1, initial=0.0)
-        inside, inside_counts = _stacked([e.inner_points() for e in elements], (3,))
-        return _groups(centres, radii) | {"el_points": corners, "el_np": counts, "el_in": inside, "el_in_n": inside_counts,
-            "el_outer": _planes(outside), "el_outer_n": np.array([len(p) for p in outside], dtype=np.int64),
-            "el_inner": _planes([e.planes for e in elements]),
-            "el_inner_n": np.array([len(e.planes) for e in elements], dtype=np.int64), "el_c": centres, "el_r": radii}
+        return _groups(centres, radii) | out | {"el_c": centres, "el_r": radii}
 
     @staticmethod
     def _check_against_pybullet(world: CollisionWorld, frames: LinkFrames, links: list[int],

@@ -271,9 +271,15 @@ def boxes_of(pb, client: int, body: int) -> np.ndarray | None:
 
 
 def fast_elements(pb, client: int, body: int) -> list[tuple[np.ndarray, np.ndarray]] | None:
-    """A scan body's padded boxes as the fast model's elements (scene frame): (corners, half-spaces) per box,
-    for `spheres.Convex(corners, planes, outside=planes)`; None for any other body.
-    Solid boxes where pybullet holds their padded union's surface: a link overlaps a box deeper than
+    """`fast_boxes` one element at a time: (corners, half-spaces) per box."""
+    boxes = fast_boxes(pb, client, body)
+    return None if boxes is None else list(zip(*boxes))
+
+
+def fast_boxes(pb, client: int, body: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """A scan body's padded boxes as the fast model's elements (scene frame), all at once: corners (B, 8, 3)
+    and half-spaces (B, 6, 4), for `spheres.Convex(corners, planes, outside=planes)` each; None for any other
+    body. Solid boxes where pybullet holds their padded union's surface: a link overlaps a box deeper than
     the fast model's sure depth only through that surface, as scanned shells are a voxel or two thick.
     Boxes longer than `FAST_PIECE` are cut into pieces: the model skips a box that a sphere around it keeps
     from a link's sphere, and the sphere around a run the length of the floor meets every link."""
@@ -286,7 +292,7 @@ def fast_elements(pb, client: int, body: int) -> list[tuple[np.ndarray, np.ndarr
     normals = np.array([[-1.0, 0, 0], [1.0, 0, 0], [0, -1.0, 0], [0, 1.0, 0], [0, 0, -1.0], [0, 0, 1.0]])
     offsets = np.stack([-lo[:, 0], hi[:, 0], -lo[:, 1], hi[:, 1], -lo[:, 2], hi[:, 2]], axis=1)  # n.x <= d
     planes = np.concatenate([np.broadcast_to(normals, (len(lo), 6, 3)), offsets[..., None]], axis=2)
-    return list(zip(corners, planes))
+    return corners, planes
 
 
 FAST_PIECE = 0.3  # m: the longest side of a box as the fast model takes it (its broad phase's cell)

@@ -32,9 +32,11 @@ import time
 from pathlib import Path
 
 import httpx
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # tests/bench: bench_scan_scene
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository: tests.scans
 
 from labs import start_lab  # noqa: E402
 
@@ -102,22 +104,25 @@ def run(samples: int, rounds: int, live: bool) -> dict[str, list[float]]:
 
 
 def scan_against_box(samples: int, rounds: int) -> None:
-    """tdgen's live update in one process: a box put down, then a 300,000-point scan added, round by round."""
+    """tdgen's live update in one process, round by round: a box put down, a new 300,000-point scan added
+    (its file never seen before), a box again, and the same scan added again."""
     import msgspec
-    from bench_scan_scene import POINTS, scan_scenes  # tests/bench, beside this file
+    from bench_scan_scene import POINTS, VIEW  # tests/bench, beside this file
 
     from tdgen.generate import Naming, write_artefacts
     from tdgen.live import LiveSamples
     from tdgen.robot import points_csv
     from tdgen.robot.model import Robot
-    from tdgen.robot.surroundings import BoxBody, load_scene
+    from tdgen.robot.surroundings import BoxBody, PointsBody, load_scene
     from tdgen.sampling import sample_workspace
+    from tests.scans import render_scan, thinned, write_pcd
 
     with tempfile.TemporaryDirectory() as tmp:
         os.environ["TWINMESH_CACHE"] = f"{tmp}/cache"  # the scans' (the compiled code stays where it is: cores)
-        scan_scenes(Path(tmp), POINTS, (960, 720))
-        full = load_scene(Path(tmp) / "with.json")
-        base, scan = msgspec.structs.replace(full, bodies=full.bodies[:-1]), full.bodies[-1]
+        full = load_scene("table-and-wall")
+        base = msgspec.structs.replace(full, bodies=[b for b in full.bodies if b.name == "table"])
+        room = msgspec.structs.replace(full, bodies=[b for b in full.bodies if b.name != "table"])
+        rendered = render_scan(room, size=(960, 720), **VIEW)  # type: ignore[arg-type]
         robot = Robot.load("ur10.urdf")
         sampled = sample_workspace(robot, base, samples, 4)
         held = LiveSamples(robot, base, sampled, points_csv.encode(robot, sampled.positions, sampled.collision,
@@ -125,20 +130,84 @@ def scan_against_box(samples: int, rounds: int) -> None:
         held.prepare()
         print(f"UR10 in table-and-wall without its wall, {samples} samples ({int((~sampled.collision).sum())} free); "
               f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-        print(f"{'added':28} {'re-check, wall (CPU)':>24} {'whole update, wall (CPU)':>26}")
+        print(f"{'added':34} {'re-check, wall (CPU)':>22} {'whole update, wall (CPU)':>26}")
+        figures: dict[str, list[tuple[float, float, float, float]]] = {"box": [], "first": [], "again": []}
+
+        def update(label: str, kind: str, body) -> None:
+            wall, cpu = time.perf_counter(), time.process_time()
+            live, _ = held.rescene(msgspec.structs.replace(base, bodies=[*base.bodies, body]))
+            check = (time.perf_counter() - wall, time.process_time() - cpu)
+            write_artefacts(robot, live.scene, live.samples, Path(tmp), Naming("ur10"), 4, points=live.flags,
+                            warnings=live.warnings(), write=lambda path, content: None)
+            whole = (time.perf_counter() - wall, time.process_time() - cpu)
+            figures[kind].append((*check, *whole))
+            print(f"{label:34} {check[0] * 1000:>12.0f} ({check[1] * 1000:.0f}) ms "
+                  f"{whole[0] * 1000:>16.0f} ({whole[1] * 1000:.0f}) ms")
+
         for k in range(rounds):
-            crate = BoxBody(name="crate", size=(0.3, 0.3, 0.3), position=(0.5, -0.3 - 0.02 * k, 0.8))
-            for label, body in ((f"box, round {k}", crate),
-                                (f"300,000-point scan, round {k}", scan)):
-                wall, cpu = time.perf_counter(), time.process_time()
-                live, _ = held.rescene(msgspec.structs.replace(base, bodies=[*base.bodies, body]))
-                check = (time.perf_counter() - wall, time.process_time() - cpu)
-                write_artefacts(robot, live.scene, live.samples, Path(tmp), Naming("ur10"), 4, points=live.flags,
-                                warnings=live.warnings(), write=lambda path, content: None)
-                whole = (time.perf_counter() - wall, time.process_time() - cpu)
-                print(f"{label:28} {check[0] * 1000:>14.0f} ({check[1] * 1000:.0f}) ms "
-                      f"{whole[0] * 1000:>16.0f} ({whole[1] * 1000:.0f}) ms")
+            scan = write_pcd(thinned(rendered, POINTS, seed=k), Path(tmp) / f"room-{k}.pcd")  # a new cloud each round
+            body = PointsBody(name="scan", file=str(scan), position=rendered.position, rpy=rendered.rpy)
+            update(f"box, round {k}", "box", BoxBody(name="crate", size=(0.3, 0.3, 0.3),
+                                                     position=(0.5, -0.3 - 0.02 * k, 0.8)))
+            update(f"new 300,000-point scan, round {k}", "first", body)
+            update(f"box, round {k}b", "box", BoxBody(name="crate", size=(0.3, 0.3, 0.3),
+                                                      position=(0.5, -0.31 - 0.02 * k, 0.8)))
+            update(f"the same scan again, round {k}", "again", body)
         held.close()
+        print(f"\nmedians, ms: wall (CPU)       {'re-check':>18} {'whole update':>18}")
+        for kind, label in (("box", "a box"), ("first", "a new scan"), ("again", "the same scan again")):
+            rows = figures[kind]
+            med = [statistics.median(r[i] for r in rows) * 1000 for i in range(4)]
+            print(f"{label:30} {med[0]:>10.0f} ({med[1]:.0f}) {med[2]:>12.0f} ({med[3]:.0f})")
+        scan_floor(Path(tmp) / "room-floor.pcd", thinned(rendered, POINTS, seed=rounds), rendered, robot, base,
+                   sampled.q[~sampled.collision])
+
+
+def scan_floor(path: Path, cloud, rendered, robot, base, q) -> None:
+    """CPU ms of each step a new scan's first update takes, measured alone on a cloud never seen: what no
+    update can skip (its file hashed, read, placed and put into voxels) and what it builds from them."""
+    import msgspec
+    from scipy.spatial.transform import Rotation
+
+    from tdgen.robot import scan_bodies, scan_io
+    from tdgen.robot.collision import CollisionWorld
+    from tdgen.robot.fast_collision import FastCollision, ScanClearance
+    from tdgen.robot.surroundings import PointsBody, prepare
+    from tests.scans import write_pcd
+
+    write_pcd(cloud, path)
+    steps: list[tuple[str, float]] = []
+
+    def step(label: str, do):
+        cpu = time.process_time()
+        out = do()
+        steps.append((label, (time.process_time() - cpu) * 1000))
+        return out
+
+    step("its file hashed (sha256)", lambda: scan_io.content_digest(path))
+    points = step("read (binary_compressed PCD)", lambda: scan_io.read_cloud(path))
+    placed = step("placed by the sensor's pose", lambda: Rotation.from_euler("xyz", rendered.rpy, degrees=True)
+                  .apply(points) + np.asarray(rendered.position))
+    cells = np.floor(placed / scan_bodies.DEFAULT_VOXEL).astype(np.int64)
+    step("its occupied voxels (sorted, unique)", lambda: np.unique(scan_bodies._packed(cells - cells.min(axis=0))))
+    step("voxels merged into padded boxes and faces", lambda: scan_bodies._voxels(placed, scan_bodies.DEFAULT_VOXEL))
+    scan_io._DIGESTS.clear()
+    body = PointsBody(name="scan", file=str(path), position=rendered.position, rpy=rendered.rpy)
+    prepared = step("all of these at once, its cache entry written", lambda: prepare(body))
+    world = CollisionWorld(robot, msgspec.structs.replace(base, bodies=[]), part=True)
+    try:
+        FastCollision(world)  # the robot's part, made once per robot (before any update)
+        step("built into a pybullet world (lists, shapes)", lambda: world.set_bodies([body]))
+        within = step("where the robot reaches (2,000 poses)",
+                      lambda: ScanClearance.reach(world, FastCollision(world).spheres))
+        step("distance field there", lambda: scan_bodies.clearance(prepared, within))
+        fast = step("fast model of it (tables)", lambda: FastCollision(world))
+        step(f"{len(q)} base-free samples checked", lambda: fast.colliding(q))
+    finally:
+        world.close()
+    print("\na new scan's steps alone, CPU ms (the first four are the floor: no update skips them):")
+    for label, ms in steps:
+        print(f"  {label:46} {ms:>6.0f}")
 
 
 def main() -> None:
