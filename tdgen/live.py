@@ -12,6 +12,7 @@ itself (its table removed) needs a generation. The flags are those a generation 
 """
 from __future__ import annotations
 
+import gc
 from collections import Counter, OrderedDict
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -91,14 +92,14 @@ class Worlds:
         self._part_model: tuple[bytes, FastCollision] | None = None  # the part world's, for the body it holds
         self._answers: OrderedDict[bytes, _Answers] = OrderedDict()
 
-    def part(self, bodies: list[Body]) -> CollisionWorld:
+    def part(self, bodies: list[Body], keys: list[bytes] | None = None) -> CollisionWorld:
+        """The part world holding `bodies` (their `content_key`s, if known)."""
         if self._part is None:
             self._part = CollisionWorld(self.robot, msgspec.structs.replace(self.base, bodies=[]), part=True)
-        self._part.set_bodies(bodies)
+        self._part.set_bodies(bodies, keys)
         return self._part
 
-    def _of(self, body: Body) -> _Answers:
-        key = content_key(body)
+    def _of(self, key: bytes) -> _Answers:
         held = self._answers.get(key)
         if held is None:
             held = self._answers[key] = _Answers(len(self.q))
@@ -107,33 +108,36 @@ class Worlds:
         self._answers.move_to_end(key)
         return held
 
-    def touching(self, body: Body, rows: np.ndarray, model: str = "fast") -> tuple[np.ndarray, int]:
+    def touching(self, body: Body, rows: np.ndarray, model: str = "fast",
+                 key: bytes | None = None) -> tuple[np.ndarray, int]:
         """Which of the base samples `rows` touch `body` (`touching`), and how many were checked: only rows
         not asked before, in the part world holding it, whose fast model is kept while it holds the body (an
-        update asks for the samples, then for its warnings; a scan's model is thousands of pieces)."""
-        answers = self._of(body)
+        update asks for the samples, then for its warnings; a scan's model is thousands of pieces). `key`:
+        the body's `content_key`, if known (a scan written just now is hashed each time it is asked)."""
+        key = key or content_key(body)
+        answers = self._of(key)
         ask = rows[answers.touching[rows] < 0]
         if len(ask):
-            world = self.part([body])
+            world = self.part([body], [key])
             if model == "exact":
                 hit = touching(world, self.q[ask], model)
             else:
-                held = content_key(body)
-                if self._part_model is None or self._part_model[0] != held:
+                if self._part_model is None or self._part_model[0] != key:
                     from tdgen.robot.fast_collision import FastCollision
 
-                    self._part_model = (held, FastCollision(world))
+                    self._part_model = (key, FastCollision(world))
                 hit = self._part_model[1].colliding(self.q[ask])
             answers.touching[ask] = hit
         return answers.touching[rows] == 1, len(ask)
 
-    def pairs_with(self, body: Body, rows: np.ndarray) -> list[list[str]]:
+    def pairs_with(self, body: Body, rows: np.ndarray, key: bytes | None = None) -> list[list[str]]:
         """What collides with `body` alone in each of the base samples `rows` (`CollisionWorld.what_collides`,
-        the body named as a scene of it alone names it)."""
-        answers = self._of(body)
+        the body named as a scene of it alone names it); `key` as for `touching`."""
+        key = key or content_key(body)
+        answers = self._of(key)
         ask = [int(row) for row in rows if int(row) not in answers.pairs]
         if ask:
-            world = self.part([body])
+            world = self.part([body], [key])
             answers.pairs |= {row: world.what_collides(self.q[row]) for row in ask}
         return [answers.pairs[int(row)] for row in rows]
 
@@ -223,7 +227,7 @@ class LiveSamples:
             if key in self.touches:
                 touches[key] = self.touches[key]
                 continue
-            hit, asked = self.worlds.touching(body, base_free, self.model)
+            hit, asked = self.worlds.touching(body, base_free, self.model, content_key(body))
             touches[key] = base_free[hit]
             checked += asked
         live = LiveSamples(self.robot, self.base, self.base_samples, self.base_flags, self.model, scene, touches,
@@ -249,10 +253,10 @@ class LiveSamples:
         found = [list(self.worlds.base_pairs(int(i))) if self.base_samples.collision[i] else [] for i in rows]
         names = body_names(self.scene)
         for place, body in _added(self.base, self.scene):
-            alone = body.name or "body 0"
-            hit, _ = self.worlds.touching(body, rows, self.model)
+            alone, key = body.name or "body 0", content_key(body)
+            hit, _ = self.worlds.touching(body, rows, self.model, key)
             touched = np.flatnonzero(hit)
-            for at, pairs in zip(touched, self.worlds.pairs_with(body, rows[touched])):
+            for at, pairs in zip(touched, self.worlds.pairs_with(body, rows[touched], key)):
                 for pair in pairs:
                     link, _, other = pair.rpartition(" / ")
                     pair = f"{link} / {names[place]}" if other == alone else pair
@@ -263,7 +267,7 @@ class LiveSamples:
     def prepare(self) -> None:
         """Load the kept worlds, hash the samples and ask what collides in the base's first samples now,
         between updates, so that the first update does not wait for them (nor for the module that makes a
-        scan's distance field)."""
+        scan's distance field, nor for the garbage collector walking all of it)."""
         from scipy import ndimage  # noqa: F401 - imported once here, not in the first scan's update
 
         from tdgen.generate import PAIR_SAMPLES
@@ -277,6 +281,9 @@ class LiveSamples:
             from tdgen.robot.fast_collision import FastCollision
 
             FastCollision(part)
+        gc.collect()
+        gc.freeze()  # what is loaded by now lives as long as the process: the full collections that an update's
+        # allocations (a scan's pybullet lists) set off no longer walk it, tens of ms each
 
     def close(self) -> None:
         self.worlds.close()

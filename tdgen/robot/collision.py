@@ -77,16 +77,16 @@ class CollisionWorld:
     def close(self) -> None:
         self._pb.disconnect(self.client)
 
-    def set_bodies(self, bodies: list[Body]) -> None:
+    def set_bodies(self, bodies: list[Body], keys: list[bytes] | None = None) -> None:
         """Make the scene's bodies `bodies`, the robot where it stands: bodies gone are removed, new ones
         built, the rest kept (a live update changes a box without loading the robot and the room again); a
-        scan or mesh whose file's content changed is a new one (`content_key`)."""
+        scan or mesh whose file's content changed is a new one (`content_key`; `keys`: theirs, if known)."""
         import msgspec
 
         held: dict[bytes, list[int]] = {}
         for i in self._ids:
             held.setdefault(self._held_as[i], []).append(i)
-        wanted = [content_key(body) for body in bodies]
+        wanted = keys if keys is not None else [content_key(body) for body in bodies]
         kept = [held[key].pop() if held.get(key) else None for key in wanted]
         for gone in held.values():  # first: a scan replacing a scan is not quieted against it (`build_into`)
             for i in gone:

@@ -21,6 +21,7 @@ import hashlib
 import os
 import tempfile
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,7 +51,6 @@ class Prepared:
     cached: bool = False
     key: str = ""  # its cache key: what a body built from it is marked with (`build`)
     fields: dict[tuple, Clearance] = field(default_factory=dict)  # voxels: its distance fields by region (`clearance`)
-    lists: list[tuple[list, list]] | None = None  # the parts as pybullet takes them, made at the first `build`
 
 
 def cache_dir() -> Path:
@@ -58,7 +58,8 @@ def cache_dir() -> Path:
     return (Path(root).expanduser() if root else Path.home() / ".cache" / "twinmesh") / "scans"
 
 
-_MEMORY: dict[str, Prepared] = {}  # by cache key: the file's content and the parameters
+_MEMORY: OrderedDict[str, Prepared] = OrderedDict()  # by cache key: the file's content and the parameters
+KEPT = 8  # scans and meshes kept in memory, the last used (a depth camera's newest clouds); the rest on disk
 
 
 def prepare_points(path: Path, voxel: float = DEFAULT_VOXEL, scale: float = 1.0,
@@ -87,6 +88,7 @@ def _prepared(path: Path, params: tuple, make) -> Prepared:
     digest = content_digest(path) if path.is_file() else ""
     key = hashlib.sha256(repr((FORMAT, digest, params)).encode()).hexdigest()[:32]
     if digest and key in _MEMORY:
+        _MEMORY.move_to_end(key)
         return _MEMORY[key]
     entry = cache_dir() / f"{key}.npz"
     prepared = _load(entry) if digest else None
@@ -99,6 +101,8 @@ def _prepared(path: Path, params: tuple, make) -> Prepared:
     prepared.seconds = time.perf_counter() - start
     prepared.key = key
     _MEMORY[key] = prepared
+    while len(_MEMORY) > KEPT:
+        _MEMORY.popitem(last=False)
     return prepared
 
 
@@ -218,8 +222,8 @@ def _split(centres: np.ndarray, groups: int) -> list[np.ndarray]:
             break
         pts = centres[idx]
         axis = int(np.argmax(pts.max(axis=0) - pts.min(axis=0)))
-        order = idx[np.argsort(pts[:, axis], kind="stable")]
-        half = len(order) // 2
+        half = len(idx) // 2
+        order = idx[np.argpartition(pts[:, axis], half)]  # the lower half first, each half in no order
         pending[k:k + 1] = [order[:half], order[half:]]
     return [p for p in pending if len(p)]
 
@@ -391,14 +395,20 @@ def _pieces(lo: np.ndarray, hi: np.ndarray, longest: float) -> tuple[np.ndarray,
     return lo[box] + at * step, np.where(at + 1 == n, hi[box], lo[box] + (at + 1) * step)
 
 
+_LISTS: tuple[Prepared, list[tuple[list, list]]] | None = None
+"""The last built body's parts as pybullet takes them: a generation builds a scan into two worlds in a row.
+Only the last: a scan's lists are ~100,000 Python lists, which every full garbage collection walks."""
+
+
 def build(prepared: Prepared, position, orientation, client: int) -> int:
     """The body in pybullet client `client`: a static body whose links are the prepared parts."""
     import pybullet as pb
 
-    if prepared.lists is None:  # once per scan: a live update builds it in two worlds, each time it is added
-        prepared.lists = [(verts.tolist(), tris.reshape(-1).tolist()) for verts, tris in prepared.parts]
+    global _LISTS
+    if _LISTS is None or _LISTS[0] is not prepared:
+        _LISTS = (prepared, [(verts.tolist(), tris.reshape(-1).tolist()) for verts, tris in prepared.parts])
     shapes = []
-    for verts, tris in prepared.lists:
+    for verts, tris in _LISTS[1]:
         if len(tris):
             shapes.append(pb.createCollisionShape(pb.GEOM_MESH, vertices=verts, indices=tris,
                                                   flags=pb.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=client))
