@@ -9,6 +9,10 @@ in the base or touches an added body. Adding a body checks the base-free samples
 removing an added body checks nothing; moving one is a removal and an addition. A change to the base
 itself (its table removed) needs a generation. The flags are those a generation from scratch finds
 (the tests compare them), in a fraction of a generation's time (docs/benchmarks.md: live updates).
+What each body was found to touch, and what collides with it, is kept by its content (`Worlds`): the
+same body added again (a scan taken away and put back) checks nothing. The TD's warnings take what
+collided in the base and what collides with each added body alone, so no world of the whole scene is
+ever built (a scan's thousands of triangles in it would cost each pair asked there).
 """
 from __future__ import annotations
 
