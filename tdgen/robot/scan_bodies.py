@@ -108,8 +108,9 @@ def _prepared(path: Path, params: tuple, make) -> Prepared:
     prepared.seconds = time.perf_counter() - start
     prepared.key = key
     _MEMORY[key] = prepared
-    while len(_MEMORY) > KEPT:
-        _MEMORY.popitem(last=False)
+    while len(_MEMORY) > KEPT:  # a body built from it keeps only its boxes (`_BUILT`): parts and fields go
+        _, gone = _MEMORY.popitem(last=False)
+        gone.parts, gone.fields = [], {}
     return prepared
 
 
