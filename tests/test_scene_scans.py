@@ -14,7 +14,15 @@ from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.fast_collision import FastCollision
 from tdgen.robot.model import Robot
 from tdgen.robot.scan_io import read_cloud
-from tdgen.robot.surroundings import BoxBody, PointsBody, SceneError, Surroundings, build_into, load_scene
+from tdgen.robot.surroundings import (
+    BoxBody,
+    PointsBody,
+    RobotPlacement,
+    SceneError,
+    Surroundings,
+    build_into,
+    load_scene,
+)
 from tests.scans import Truth, render_scan, write_pcd, write_ply, write_xyz
 
 TABLE = {"type": "box", "name": "table", "size": [0.6, 0.6, 0.6], "position": [0.0, 0.0, 0.3]}  # known, not scanned
@@ -328,3 +336,70 @@ def test_a_scan_written_again_under_its_name_is_checked_anew(scanned_world, tmp_
         assert checked > 0 and np.array_equal(with_far.samples.collision, generated.collision)
     finally:
         live.close()
+
+
+GRAZE = 0.0048  # m: a link this far above a scanned point, within the 5 mm that must collide
+
+
+def _grazing_patch(robot: Robot, q: np.ndarray, folder) -> tuple[Surroundings, Surroundings]:
+    """A scan of a small floor patch, a 2 mm grid of points, right under the lowest point of the robot at
+    q, `GRAZE` below it, the points just under a voxel's top face (so that only the padding, not the
+    voxel, reaches the link): (the scene without the scan, with it)."""
+    import pybullet as pb
+
+    placed = Surroundings(name="grazed", robot=RobotPlacement(position=(0.0, 0.0, 1.0)))
+    world = CollisionWorld(robot, msgspec.structs.replace(placed, bodies=[
+        BoxBody(name="probe", size=(6.0, 6.0, 0.01), position=(0.0, 0.0, -2.0))]))
+    try:
+        world._set(world._values(q[None])[0])
+        probe = next(iter(world._scene_names))
+        closest = min(pb.getClosestPoints(world.body, probe, 10.0, physicsClientId=world.client), key=lambda c: c[8])
+        lowest = np.array(closest[5])  # on the robot
+    finally:
+        world.close()
+    voxel = 0.02
+    height = np.floor(lowest[2] / voxel) * voxel - 0.0005  # just under a voxel's top face
+    if lowest[2] - height < GRAZE:
+        height -= voxel
+    lift = height + GRAZE - lowest[2]  # the robot moved down onto it (its base; every point moves alike)
+    xs = np.arange(-25, 26) * 0.002
+    points = np.array([(lowest[0] + x, lowest[1] + y, height) for x in xs for y in xs])
+    np.savetxt(folder / "patch.xyz", points, fmt="%.6f")
+    base = msgspec.structs.replace(placed, robot=RobotPlacement(position=(0.0, 0.0, float(1.0 + lift))))
+    scan = PointsBody(name="patch", file=str(folder / "patch.xyz"), voxel=voxel)
+    return base, msgspec.structs.replace(base, bodies=[scan])
+
+
+def test_a_link_grazing_a_scanned_point_is_never_free_nor_cleared_live(scanned_world, tmp_path):
+    """The 5 mm rule at its edge: a link 4.8 mm above a scanned point that lies just under its voxel's top
+    face, so that only the boxes' padding reaches it, collides in the exact test, the fast model, the scan's
+    distance field and a live update (the padding weakened below that, this fails)."""
+    from tdgen.live import LiveSamples
+    from tdgen.robot import points_csv
+    from tdgen.robot.fast_collision import ScanClearance
+    from tdgen.sampling import Samples
+
+    robot = scanned_world[0]
+    q = np.array([0.3, -0.4, 1.9, 0.2, 1.2, 0.0])  # the forearm and wrist reaching down in front
+    base, scene = _grazing_patch(robot, q, tmp_path)
+    truth = Truth(robot, scene, np.loadtxt(tmp_path / "patch.xyz"), base)
+    alone = CollisionWorld(robot, msgspec.structs.replace(scene, bodies=[]), part=True)
+    world = CollisionWorld(robot, scene)
+    try:
+        assert truth.touches(0.005, q) and not truth.free.collides(q)  # near a point, free otherwise
+        assert world.collides(q) and FastCollision(world).collides(q)
+        alone.set_bodies(scene.bodies)
+        fast = FastCollision(alone)
+        assert isinstance(fast.scans, ScanClearance) and not fast.scans.clear(q[None])[0]
+        assert fast.colliding(q[None])[0]
+        positions = np.zeros((1, 3))
+        samples = Samples(q[None], positions, np.zeros(1, dtype=bool))
+        live = LiveSamples(robot, base, samples, points_csv.encode(robot, positions, samples.collision, q[None]))
+        try:
+            assert live.rescene(scene)[0].samples.collision[0]
+        finally:
+            live.close()
+    finally:
+        truth.close()
+        alone.close()
+        world.close()
