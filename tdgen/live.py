@@ -285,8 +285,9 @@ class LiveSamples:
             from tdgen.robot.fast_collision import FastCollision
 
             FastCollision(part)
+        gc.unfreeze()  # what an earlier prepare froze and has died since (a robot's worlds let go) is collected now
         gc.collect()
-        gc.freeze()  # what is loaded by now lives as long as the process: the full collections that an update's
+        gc.freeze()  # what is loaded by now lives as long as these worlds: the full collections that an update's
         # allocations (a scan's pybullet lists) set off no longer walk it, tens of ms each
 
     def close(self) -> None:
