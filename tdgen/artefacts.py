@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,6 +16,7 @@ import msgspec
 
 from mesh.messages.scene_description import TwinDescription
 from tdgen.cache import ArtefactCache, cache_key
+from tdgen.remote_scene_files import robot_paths
 
 if TYPE_CHECKING:
     from tdgen.generate import GenerationResult
@@ -55,10 +56,12 @@ def load_robot(twin: TwinDescription) -> tuple[Robot, Calibration | None]:
 
 def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, workers: int | None = None,
                    on_progress: Callable[[float], None] | None = None,
-                   keep: Callable[[Robot, Calibration | None, GenerationResult], None] | None = None) -> Path:
+                   keep: Callable[[Robot, Calibration | None, GenerationResult], None] | None = None,
+                   paths: Mapping[str, str] | None = None) -> Path:
     """Generate `twin`'s artefacts into the cache entry `key` (the one pipeline of `twinmesh tdgen`; a
     live update's are `live_artefacts`, written by `write_entry`). `keep` is handed a generation's robot
-    and result (its samples and points.csv: the next live update's start)."""
+    and result (its samples and points.csv: the next live update's start). `paths`: scene files fetched from
+    the robot (`tdgen.remote_scene_files`), copy -> the robot's path, which scene.json names."""
     from tdgen.generate import generate
     from tdgen.robot_td import robot_id
 
@@ -70,6 +73,8 @@ def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, worker
                           frame=twin.frame, name=twin.robot, thing_id=robot_id(twin.robot), workers=workers,
                           on_progress=on_progress, collision_model=twin.collision_model)
         (folder / "td.json").write_bytes(msgspec.json.encode(result.td))  # the TD the robot serves on the mesh
+        if paths:
+            (folder / "scene.json").write_bytes(robot_paths((folder / "scene.json").read_bytes(), paths))
         for warning in result.warnings:
             log.warning("%s: %s", twin.robot, warning)
         (folder / "twin.json").write_bytes(msgspec.json.encode(twin))
@@ -80,9 +85,9 @@ def make_artefacts(twin: TwinDescription, cache: ArtefactCache, key: str, worker
 
 
 def live_artefacts(twin: TwinDescription, live: LiveSamples, robot: Robot,
-                   calibration: Calibration | None) -> dict[str, Artefact]:
+                   calibration: Calibration | None, paths: Mapping[str, str] | None = None) -> dict[str, Artefact]:
     """A live update's cache entry in memory, file name -> content (its points.csv re-flagged when first
-    written): the service serves it at once and writes it to the cache after."""
+    written): the service serves it at once and writes it to the cache after. `paths` as for `make_artefacts`."""
     from tdgen.generate import Naming, write_artefacts
     from tdgen.robot_td import robot_id
 
@@ -92,6 +97,8 @@ def live_artefacts(twin: TwinDescription, live: LiveSamples, robot: Robot,
                              write=lambda path, content: files.__setitem__(path.name, content))
     files["td.json"] = msgspec.json.encode(result.td)  # the TD the robot serves on the mesh
     files["twin.json"] = msgspec.json.encode(twin)
+    if paths:
+        files["scene.json"] = robot_paths(bytes(files["scene.json"]), paths)  # type: ignore[arg-type]
     for warning in result.warnings:
         log.warning("%s: %s", twin.robot, warning)
     return files
@@ -108,9 +115,13 @@ def write_entry(cache: ArtefactCache, key: str, files: dict[str, Artefact]) -> P
     return cache.make(key, fill)
 
 
-def artefact_key(twin: TwinDescription) -> str:
-    """The cache key of `twin`'s artefacts, its URDF's meshes included when the URDF is here."""
-    return cache_key(twin, _urdf_here(twin))
+def artefact_key(twin: TwinDescription, paths: Mapping[str, str] | None = None) -> str:
+    """The cache key of `twin`'s artefacts, its URDF's meshes included when the URDF is here; with `paths`
+    (scene files fetched from the robot, `make_artefacts`), the robot's paths too: its scene.json names them."""
+    key = cache_key(twin, _urdf_here(twin))
+    if not paths:
+        return key
+    return hashlib.sha256(msgspec.json.encode([key, paths], order="sorted")).hexdigest()[:32]
 
 
 def _urdf_here(twin: TwinDescription) -> Path | None:

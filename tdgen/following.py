@@ -38,8 +38,10 @@ class Following:
 
     def follows(self, twin: TwinDescription) -> bool:
         """Is `twin` this one with other surroundings only (what a live update can follow)?"""
-        return msgspec.structs.replace(self.twin, scene={}, version=0) == msgspec.structs.replace(twin, scene={},
-                                                                                                   version=0)
+        def unscened(t: TwinDescription) -> TwinDescription:  # the files a scene names go with it
+            return msgspec.structs.replace(t, scene={}, scene_files={}, version=0)
+
+        return unscened(self.twin) == unscened(twin)
 
 
 class SceneFollower:

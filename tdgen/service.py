@@ -51,6 +51,8 @@ from mesh.wot.thing_description import ThingDescription, decode_td, thing_id
 from tdgen.artefacts import artefact_key, live_artefacts, make_artefacts, user_errors, write_entry
 from tdgen.cache import ArtefactCache, artefacts_dir
 from tdgen.following import Following, SceneFollower
+from tdgen.remote_scene_files import fetched_twin
+from tdgen.robot.errors import SceneError
 
 if TYPE_CHECKING:
     from tdgen.generate import GenerationResult
@@ -71,6 +73,7 @@ ARTEFACTS = {  # file suffix -> content type; the generated file is named like t
     "scene.json": "application/json",
 }
 FLAGS = "flags"  # `<robot>.flags`: the digest of its points.csv (tdgen.robot.points_csv.Flags.digest)
+SCENE_FILES = "scene-files"  # cache_dir/scene-files/<sha256><suffix>: scene files fetched from robots on other hosts
 WRITE_AFTER_S = 1.0  # a live update's entry is written this long after it is served (the robot fetches meanwhile)
 
 
@@ -294,8 +297,13 @@ class TdgenService:
     def generate(self, twin: TwinDescription) -> RobotStatus:
         """Make the artefacts of `twin` available (cache, live update or generation), publish the status and
         the event."""
-        key = artefact_key(twin)
         started = time.perf_counter()
+        try:
+            twin, paths = fetched_twin(twin, self.cache_dir / SCENE_FILES, lambda name: self._patiently(
+                lambda: self.client.file(twin.robot, name).payload))
+        except SceneError as e:  # a file neither here nor served by the robot: said, other robots go on
+            return self._failed(twin, artefact_key(twin), started, e)
+        key = artefact_key(twin, paths)
         cached = self.cache.has(key)
         following = None
         generated: list[tuple[Robot, Calibration | None, GenerationResult]] = []  # kept for the next scene change
@@ -305,20 +313,14 @@ class TdgenService:
             try:
                 following = self.follower.live_update(twin)
                 if following is not None:
-                    unwritten = live_artefacts(twin, following.samples, following.robot, following.calibration)
+                    unwritten = live_artefacts(twin, following.samples, following.robot, following.calibration,
+                                               paths)
                     self._progress_reporter(twin, key)(1.0)
                 else:
                     make_artefacts(twin, self.cache, key, self.workers, self._progress_reporter(twin, key),
-                                   keep=lambda *made: generated.append(made))
+                                   keep=lambda *made: generated.append(made), paths=paths)
             except Exception as e:  # noqa: BLE001 - every failure is reported on the mesh
-                expected = isinstance(e, user_errors())
-                error = str(e) if expected else f"{type(e).__name__}: {e}"
-                log.warning("%s: generation failed: %s", twin.robot, error, exc_info=not expected)
-                status = RobotStatus("failed", twin.version, key, round(time.perf_counter() - started, 3), False,
-                                     error)
-                self._set_status(twin.robot, status)
-                self.thing.emit_event("failed", {"robot": twin.robot, "version": twin.version, "error": error})
-                return status
+                return self._failed(twin, key, started, e)
         seconds = round(time.perf_counter() - started, 3)
         status = RobotStatus("ready", twin.version, key, seconds, cached, live=True if following else None)
         with self._lock:
@@ -336,6 +338,15 @@ class TdgenService:
         kept = self.follower.follow(twin, key, following or (self.follower.held(twin, *generated[0]) if generated else None))
         if kept is not None:
             self._know_digest(twin.robot, key, kept)
+        return status
+
+    def _failed(self, twin: TwinDescription, key: str, started: float, e: Exception) -> RobotStatus:
+        expected = isinstance(e, user_errors())
+        error = str(e) if expected else f"{type(e).__name__}: {e}"
+        log.warning("%s: generation failed: %s", twin.robot, error, exc_info=not expected)
+        status = RobotStatus("failed", twin.version, key, round(time.perf_counter() - started, 3), False, error)
+        self._set_status(twin.robot, status)
+        self.thing.emit_event("failed", {"robot": twin.robot, "version": twin.version, "error": error})
         return status
 
     def _know_digest(self, robot: str, key: str, kept: Following) -> None:

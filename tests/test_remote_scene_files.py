@@ -1,0 +1,152 @@
+"""A robot on another host whose scene holds a scan: the tdgen service cannot read the scan by the robot's path,
+fetches it from the robot Thing (`files/<name>`, `TwinDescription.scene_files`) and generates as if the file
+were here: the same points.csv as from the file read by path, other flags than the scene without the scan,
+and a scene.json naming the robot's path (which the robot serves under its own name). A file the robot cannot
+serve fails that robot alone, the status naming the file and why.
+
+The mesh is real (a Zenoh router on loopback, the service and the robots' file servers on sessions of their
+own); the robots are `ExposedThing`s serving the files a robot Thing would (what the service asks of a robot
+is its files), their twins handed to the service as its discovery would.
+"""
+from __future__ import annotations
+
+import hashlib
+from contextlib import ExitStack
+from pathlib import Path
+
+import msgspec
+import pytest
+from labs import free_port
+from scans import render_scan, write_pcd
+
+from mesh.fabric.mesh_client import MeshClient
+from mesh.fabric.server import ExposedThing
+from mesh.fabric.session import open_session
+from mesh.fabric.settings import MeshSettings
+from mesh.messages.scene_description import Pose, TwinDescription
+from mesh.wot.problem import NotFound, Unavailable
+from mesh.wot.thing_description import decode_td, thing_id
+from tdgen.remote_scene_files import fetched_twin, robot_paths
+from tdgen.robot.errors import SceneError
+from tdgen.robot.model import Robot
+from tdgen.robot.surroundings import BoxBody, Surroundings
+from tdgen.service import TdgenService
+
+ELSEWHERE = "/robot-host/lab/scans/room.pcd"  # the scan's path on the robot's host: nothing there on this one
+SERVED = "scene-room.pcd"
+TABLE = {"type": "box", "name": "table", "size": [0.6, 0.6, 0.6], "position": [0.0, 0.0, 0.3]}
+
+
+@pytest.fixture(scope="module")
+def scan_file(tmp_path_factory) -> tuple[Path, dict]:
+    """A scan of a wall and a crate beside the robot (PCD), and its points body (without `file`)."""
+    room = Surroundings(name="room", bodies=[
+        BoxBody(name="wall", size=(2.0, 0.1, 1.6), position=(0.0, 0.6, 0.8)),
+        BoxBody(name="crate", size=(0.3, 0.3, 0.4), position=(0.55, -0.2, 0.8))])
+    scan = render_scan(room, eye=(1.4, -1.3, 1.5), target=(0.0, 0.2, 0.6), size=(96, 72), seed=3)
+    path = write_pcd(scan, tmp_path_factory.mktemp("robot-host") / "room.pcd")
+    return path, {"type": "points", "name": "room", "position": list(scan.position), "rpy": list(scan.rpy),
+                  "voxel": 0.03}
+
+
+def _twin(robot: str, bodies: list[dict], files: dict[str, str] | None = None) -> TwinDescription:
+    ur10 = Robot.load("ur10.urdf").urdf_path
+    return TwinDescription(robot=robot, urdf="ur10.urdf", urdf_sha256=hashlib.sha256(ur10.read_bytes()).hexdigest(),
+                           base=Pose((0.0, 0.0, 0.6)), scene={"bodies": bodies}, scene_files=files or {},
+                           samples=1500)
+
+
+# --- the copies (no mesh) --------------------------------------------------------------------------
+def test_a_file_not_here_is_fetched_once_per_content_and_named_by_it(scan_file, tmp_path):
+    path, body = scan_file
+    asked: list[str] = []
+    twin = _twin("farbot", [TABLE, {**body, "file": ELSEWHERE}, {**body, "name": "again", "file": ELSEWHERE}],
+                 {ELSEWHERE: SERVED})
+    fetched, paths = fetched_twin(twin, tmp_path, lambda name: asked.append(name) or path.read_bytes())
+    copy = tmp_path / f"{hashlib.sha256(path.read_bytes()).hexdigest()}.pcd"
+    assert asked == [SERVED] and copy.read_bytes() == path.read_bytes()
+    assert [b.get("file") for b in fetched.scene["bodies"]] == [None, str(copy), str(copy)]
+    assert paths == {str(copy): ELSEWHERE}
+    assert fetched_twin(_twin("nearbot", [{**body, "file": str(path)}]), tmp_path, asked.append)[1] == {}
+    assert asked == [SERVED]  # a file here is read by its path: nothing fetched
+
+
+def test_the_scene_json_made_from_the_copy_names_the_robots_path(tmp_path):
+    scene = b'{"name": "s", "robot": {}, "bodies": [{"type": "points", "name": "room", "file": "/cache/ab.pcd"}]}'
+    assert msgspec.json.decode(robot_paths(scene, {"/cache/ab.pcd": ELSEWHERE}))["bodies"][0]["file"] == ELSEWHERE
+
+
+@pytest.mark.parametrize(("served", "fetch", "why"), [
+    ({}, None, "serves no file for it"),
+    ({ELSEWHERE: SERVED}, NotFound(f"{SERVED}: the scene's file cannot be read (No such file or directory)"),
+     "No such file or directory"),
+    ({ELSEWHERE: SERVED}, b"", "the file is empty")], ids=["unnamed", "unreadable", "empty"])
+def test_a_file_the_robot_cannot_serve_is_a_scene_error_naming_it_and_why(served, fetch, why, tmp_path):
+    def ask(name: str) -> bytes:
+        if isinstance(fetch, Exception):
+            raise fetch
+        return fetch or b""
+
+    with pytest.raises(SceneError, match=why) as err:
+        fetched_twin(_twin("farbot", [{"type": "points", "name": "room", "file": ELSEWHERE}], served), tmp_path, ask)
+    assert ELSEWHERE in str(err.value)
+
+
+# --- through the service, on a mesh ----------------------------------------------------------------
+@pytest.fixture
+def mesh():
+    settings = MeshSettings(connect=(f"tcp/127.0.0.1:{free_port()}",))
+    with open_session(settings.as_router()):
+        yield settings
+
+
+def _robot_host(stack: ExitStack, mesh: MeshSettings, name: str, files: dict[str, Path]) -> None:
+    """A Thing serving `files` (name -> path) as a robot Thing serves its scene's files."""
+    def lookup(file: str) -> tuple[bytes, str]:
+        if file not in files:
+            raise NotFound(f"{name} has no file {file!r}")
+        try:
+            return files[file].read_bytes(), "application/octet-stream"
+        except OSError as e:
+            raise NotFound(f"{file}: the scene's file {files[file]} cannot be read ({e.strerror})") from None
+
+    td = decode_td({"title": name, "id": thing_id(name), "properties": {}})
+    thing = ExposedThing(stack.enter_context(open_session(mesh)), td, name, mesh.keys).on_any_file(lookup)
+    thing.expose()
+    stack.callback(thing.destroy)
+
+
+def _flags(client: MeshClient, robot: str) -> list[str]:
+    """The collision flag of each row of the robot's points.csv as the service serves it."""
+    rows = client.file("tdgen", f"{robot}.points.csv").payload.decode().splitlines()[1:]
+    return [row.split(",")[3] for row in rows]
+
+
+def test_a_robot_elsewhere_gets_the_flags_of_its_scan_and_a_file_it_cannot_serve_fails_it_alone(mesh, scan_file,
+                                                                                              tmp_path):
+    path, body = scan_file
+    with ExitStack() as stack:
+        service = stack.enter_context(TdgenService(stack.enter_context(open_session(mesh)), mesh, tmp_path / "c", 1))
+        _robot_host(stack, mesh, "farbot", {SERVED: path})
+        _robot_host(stack, mesh, "lostbot", {SERVED: tmp_path / "gone.pcd"})
+        client = MeshClient(stack.enter_context(open_session(mesh)), mesh)
+
+        far = service.generate(_twin("farbot", [TABLE, {**body, "file": ELSEWHERE}], {ELSEWHERE: SERVED}))
+        assert far.status == "ready", far.error
+        remote = _flags(client, "farbot")
+        scene = msgspec.json.decode(client.file("tdgen", "farbot.scene.json").payload)
+        assert [b.get("file") for b in scene["bodies"]] == [None, ELSEWHERE]  # the robot maps it to its name
+
+        assert service.generate(_twin("nearbot", [TABLE, {**body, "file": str(path)}])).status == "ready"
+        assert service.generate(_twin("barebot", [TABLE])).status == "ready"
+        assert remote == _flags(client, "nearbot")  # as if the scan were here
+        changed = sum(a != b for a, b in zip(remote, _flags(client, "barebot")))
+        assert changed >= 10, "the scan decides no sample"
+
+        lost = service.generate(_twin("lostbot", [TABLE, {**body, "file": ELSEWHERE}], {ELSEWHERE: SERVED}))
+        robots = service.robots()
+        assert lost.status == "failed" and robots["lostbot"]["status"] == "failed"
+        assert ELSEWHERE in robots["lostbot"]["error"] and "gone.pcd" in robots["lostbot"]["error"]
+        assert robots["farbot"]["status"] == "ready" and _flags(client, "farbot") == remote
+        with pytest.raises((NotFound, Unavailable)):
+            client.file("tdgen", "lostbot.points.csv")
