@@ -26,6 +26,14 @@ JOINING_LEASE_MS = 1500
 # devices of other hosts linked straight to the lab's router, `up --join --direct`, with a 10 s lease).
 LOCAL_LEASE_MS = 60_000
 ROUTER_MAX_SESSIONS = 100_000  # Zenoh's default (1,000) would cap a host at 1,000 devices
+# A host's devices all open their sessions at once. Zenoh's router (and gateway) closes a new link outright
+# while 100 handshakes are pending (`accept_pending`), and a handshake that takes 10 s fails on both ends:
+# under that load the devices retried, each retry another handshake, and a host of 1,000 never settled
+# (thousands of sockets the gateway had not yet accepted, closed by the devices that gave up). The
+# figures of Zenoh's own deployments of hundreds of nodes starting together (rmw_zenoh's router
+# configuration): 10,000 pending, 60 s to open or accept.
+ACCEPT_PENDING = 10_000
+HANDSHAKE_MS = 60_000
 # Zenoh closes a dead link's TCP socket with a 10 s linger, synchronously, on one of its 2 receive
 # threads (zenoh#1101, zenoh#2718): a cut host's two links (its router, a robot joined directly) held
 # both, and the lab's router forwarded nothing until the linger ended, its own devices' reads included. The
@@ -100,8 +108,11 @@ class MeshSettings(msgspec.Struct, frozen=True, kw_only=True):
         if self.mode == "client" and self.wait_for_router:
             conf.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": -1, "client": OPEN_ATTEMPT_MS}))
             conf.insert_json5("connect/exit_on_failure", json.dumps({"router": False, "peer": False, "client": True}))
+        conf.insert_json5("transport/unicast/open_timeout", json.dumps(HANDSHAKE_MS))
         if self.mode == "router" or self.gateway:
             conf.insert_json5("transport/unicast/max_sessions", json.dumps(ROUTER_MAX_SESSIONS))
+            conf.insert_json5("transport/unicast/accept_pending", json.dumps(ACCEPT_PENDING))
+            conf.insert_json5("transport/unicast/accept_timeout", json.dumps(HANDSHAKE_MS))
         if self.gateway:
             conf.insert_json5("gateway", json.dumps({"south": [{"filters": [{"modes": ["client", "peer"]}]}]}))
         for path, value in self.overrides:
