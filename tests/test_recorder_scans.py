@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import rerun as rr
 import trimesh
+from scan_formats import write_e57, write_las
 from scans import Scan, write_pcd
 from scipy.spatial.transform import Rotation
 
@@ -102,3 +103,25 @@ def test_a_large_cloud_is_drawn_with_at_most_100k_of_its_own_points(tmp_path):
     assert len(set(index)) == MAX_POINTS and np.allclose(asset.points, xyz[index])  # its own points, each once
     again = read_asset("points", "big.pcd", (tmp_path / "big.pcd").read_bytes())
     assert np.array_equal(again.points, asset.points)  # the same choice every time: a redraw shows the same cloud
+
+
+@pytest.mark.parametrize("name, write", [("room.las", write_las), ("room.laz", write_las), ("room.e57", write_e57)])
+def test_a_las_or_e57_scan_is_drawn_as_its_points_where_the_sensor_stood(tmp_path, name, write):
+    from mesh.recorder.robots import RobotFiles
+
+    scan = _organized_cloud(seed=2)
+    served = {f"scene-{name}": write(scan, tmp_path / name).read_bytes()}
+    twin = _twin([{"type": "points", "name": "room", "file": f"/lab/scans/{name}", **SENSOR}],
+                 {f"/lab/scans/{name}": f"scene-{name}"})
+    path = tmp_path / "drawn.rrd"
+    rec = rr.RecordingStream("scan-formats")
+    rec.save(str(path))
+    problems = RobotDrawer(rec, SceneDrawer(rec)).draw_robot(
+        RobotFiles("ur10", twin, UR10_URDF, read_scene_assets(twin, served.__getitem__)))
+    rec.flush()
+    rec.disconnect()
+    assert not problems
+    entity = "/robots/ur10/scene/room"
+    points = latest_static(path, entity, "Points3D:positions")
+    assert len(points) == len(scan.finite())
+    assert np.allclose(placed(path, entity, points), scan.world(), atol=1e-4)

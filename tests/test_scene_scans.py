@@ -23,6 +23,7 @@ from tdgen.robot.surroundings import (
     build_into,
     load_scene,
 )
+from tests.scan_formats import write_e57, write_las
 from tests.scans import Truth, render_scan, write_pcd, write_ply, write_xyz
 
 TABLE = {"type": "box", "name": "table", "size": [0.6, 0.6, 0.6], "position": [0.0, 0.0, 0.3]}  # known, not scanned
@@ -63,8 +64,10 @@ def _show(scene: str):
     lambda s, d: write_pcd(s, d / "c.pcd", "binary_compressed"),
     lambda s, d: write_pcd(s, d / "d.pcd", "binary_compressed", extra=False),
     lambda s, d: write_ply(s, d / "e.ply", ascii=True), lambda s, d: write_ply(s, d / "f.ply"),
-    lambda s, d: write_xyz(s, d / "g.xyz")], ids=["pcd-ascii", "pcd-binary", "pcd-compressed-label-rgba",
-                                               "pcd-compressed-xyz", "ply-ascii", "ply-binary", "xyz-text"])
+    lambda s, d: write_xyz(s, d / "g.xyz"), lambda s, d: write_las(s, d / "h.las"),
+    lambda s, d: write_las(s, d / "i.laz"), lambda s, d: write_e57(s, d / "j.e57")],
+    ids=["pcd-ascii", "pcd-binary", "pcd-compressed-label-rgba", "pcd-compressed-xyz", "ply-ascii", "ply-binary",
+         "xyz-text", "las", "laz", "e57"])
 def test_every_cloud_format_gives_the_scans_points(scan, tmp_path, write):
     points = read_cloud(write(scan, tmp_path))
     assert points.shape == scan.finite().shape  # an organized cloud's NaN points dropped, none else
@@ -93,6 +96,8 @@ def _nan_pcd(path):
     ("missing.pcd", None, "file not found"),
     ("empty.pcd", lambda p: p.write_bytes(b""), "empty"),
     ("garbage.pcd", lambda p: p.write_bytes(b"\x00\x01not a pcd at all" * 20), "cannot read"),
+    ("garbage.las", lambda p: p.write_bytes(b"LASF but nothing else" * 20), "LAS header is broken"),
+    ("garbage.e57", lambda p: p.write_bytes(b"ASTM-E57 but nothing else" * 20), "cannot read"),
     ("scan.e58", lambda p: p.write_text("1 2 3\n"), "unknown point cloud format"),
     ("holes.pcd", _nan_pcd, "NaN"),
     ("millimetres.xyz", lambda p: p.write_text("0 0 0\n1500 0 0\n0 2500 800\n"), "millimetres given as metres"),

@@ -8,8 +8,8 @@ sensor's frame, the pose being the sensor's.
 
 A cloud is drawn with at most `MAX_POINTS` of its points (an even random choice, the same every time:
 a 300,000-point scan would cost the viewer more than it shows); NaN points (an organized cloud's holes)
-are left out. Formats: PCD, PLY and XYZ text (`mesh.cloud_files`, as tdgen reads them), STL, OBJ, OFF,
-glTF/GLB, DAE (trimesh); LAS and E57 scans are not drawn (said in the recording's log).
+are left out. Formats: PCD, PLY, XYZ text, and LAS/LAZ and E57 where laspy and pye57 are installed
+(`mesh.cloud_files`, as tdgen reads them), STL, OBJ, OFF, glTF/GLB, DAE (trimesh).
 """
 from __future__ import annotations
 

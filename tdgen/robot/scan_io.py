@@ -7,7 +7,8 @@ the file and what is wrong with it, so a lab refuses a bad scene before it start
 PCD goes through pypcd4 (ascii, binary and LZF binary_compressed, any extra fields such as `label`
 or `rgba`): small, pure Python with a C LZF codec, where open3d would bring a few hundred MB for one
 reader. PLY, STL, OBJ and glTF go through trimesh; LAS/LAZ through laspy and E57 through pye57 when
-installed (neither is needed for the other formats).
+installed (neither is needed for the other formats). Clouds are read by `mesh.cloud_files`, as the
+recorder reads them.
 """
 from __future__ import annotations
 
@@ -18,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from mesh.cloud_files import SUFFIXES as CLOUD_FILES
-from mesh.cloud_files import CloudFileError, read_cloud_bytes
+from mesh.cloud_files import CloudFileError, read_cloud_file
 from tdgen.robot.errors import SceneError
 
-CLOUD_SUFFIXES = (*CLOUD_FILES, ".las", ".laz", ".e57")
+CLOUD_SUFFIXES = CLOUD_FILES
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".glb", ".gltf", ".off", ".dae")
 LARGEST_EXTENT = 100.0  # m: a scan wider than this is taken for millimetres given as metres
 
@@ -34,7 +35,7 @@ def read_cloud(path: Path, scale: float = 1.0) -> np.ndarray:
                          f"(known: {', '.join(CLOUD_SUFFIXES)})")
     _readable(path)
     try:
-        raw = _CLOUD_READERS[suffix](path)
+        raw = _cloud_file(path)
     except SceneError:
         raise
     except Exception as exc:  # each library fails in its own way on a broken file
@@ -110,30 +111,8 @@ def _readable(path: Path) -> None:
 
 
 def _cloud_file(path: Path) -> np.ndarray:
-    """PCD, PLY or XYZ text, read as the recorder reads them (`mesh.cloud_files`)."""
+    """Any cloud format, read as the recorder reads it (`mesh.cloud_files`)."""
     try:
-        return read_cloud_bytes(path.suffix.lower(), path.read_bytes())
+        return read_cloud_file(path)
     except CloudFileError as e:
         raise SceneError(f"{path}: {e}") from None
-
-
-def _las(path: Path) -> np.ndarray:
-    try:
-        import laspy
-    except ImportError:
-        raise SceneError(f"{path}: LAS/LAZ scans need laspy (pip install laspy)") from None
-    las = laspy.read(str(path))
-    return np.column_stack([las.x, las.y, las.z])
-
-
-def _e57(path: Path) -> np.ndarray:
-    try:
-        import pye57
-    except ImportError:
-        raise SceneError(f"{path}: E57 scans need pye57 (pip install pye57)") from None
-    e57 = pye57.E57(str(path))
-    scans = [e57.read_scan(k, ignore_missing_fields=True, transform=True) for k in range(e57.scan_count)]
-    return np.vstack([np.column_stack([s["cartesianX"], s["cartesianY"], s["cartesianZ"]]) for s in scans])
-
-
-_CLOUD_READERS = {**{suffix: _cloud_file for suffix in CLOUD_FILES}, ".las": _las, ".laz": _las, ".e57": _e57}
