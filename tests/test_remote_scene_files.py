@@ -4,32 +4,42 @@ were here: the same points.csv as from the file read by path, other flags than t
 and a scene.json naming the robot's path (which the robot serves under its own name). A file the robot cannot
 serve fails that robot alone, the status naming the file and why.
 
-The mesh is real (a Zenoh router on loopback, the service and the robots' file servers on sessions of their
-own); the robots are `ExposedThing`s serving the files a robot Thing would (what the service asks of a robot
-is its files), their twins handed to the service as its discovery would.
+On a mesh: a Zenoh router on loopback, the service and the robots' file servers on sessions of their own, the
+robots `ExposedThing`s serving the files a robot Thing would (what the service asks of a robot is its files),
+their twins handed to the service as its discovery would. In a lab: `twinmesh robot` in a mount namespace of
+its own (another host's files: its scene's folder is empty on the lab's side) joins the shared lights lab.
 """
 from __future__ import annotations
 
 import hashlib
+import json
+import os
+import shutil
+import subprocess
 from contextlib import ExitStack
 from pathlib import Path
 
+import httpx
 import msgspec
+import numpy as np
 import pytest
-from labs import free_port
+from labs import REPO, free_port, stop_process
 from scans import render_scan, write_pcd
+from waiting import eventually
 
 from mesh.fabric.mesh_client import MeshClient
 from mesh.fabric.server import ExposedThing
 from mesh.fabric.session import open_session
 from mesh.fabric.settings import MeshSettings
+from mesh.messages.relations import POINTS, WORKSPACE
 from mesh.messages.scene_description import Pose, TwinDescription
 from mesh.wot.problem import NotFound, Unavailable
 from mesh.wot.thing_description import decode_td, thing_id
 from tdgen.remote_scene_files import fetched_twin, robot_paths
+from tdgen.robot.collision import CollisionWorld
 from tdgen.robot.errors import SceneError
 from tdgen.robot.model import Robot
-from tdgen.robot.surroundings import BoxBody, Surroundings
+from tdgen.robot.surroundings import BoxBody, Surroundings, load_scene
 from tdgen.service import TdgenService
 
 ELSEWHERE = "/robot-host/lab/scans/room.pcd"  # the scan's path on the robot's host: nothing there on this one
@@ -150,3 +160,61 @@ def test_a_robot_elsewhere_gets_the_flags_of_its_scan_and_a_file_it_cannot_serve
         assert robots["farbot"]["status"] == "ready" and _flags(client, "farbot") == remote
         with pytest.raises((NotFound, Unavailable)):
             client.file("tdgen", "lostbot.points.csv")
+
+
+# --- a robot process on "another host", in a lab ---------------------------------------------------
+def _private_mounts() -> list[str] | str:
+    """The command prefix that runs a command in a mount namespace of its own, or why there is none."""
+    prefix = ["unshare", "--mount", "--propagation", "private", *([] if os.geteuid() == 0 else ["--map-root-user"])]
+    if shutil.which("unshare") is None:
+        return "needs unshare (util-linux)"
+    probe = subprocess.run([*prefix, "true"], capture_output=True, text=True)
+    return prefix if probe.returncode == 0 else f"cannot make a mount namespace ({probe.stderr.strip()})"
+
+
+@pytest.mark.lab
+def test_a_robot_process_whose_scan_the_lab_cannot_see_gets_the_scans_flags(lights, scan_file, tmp_path):
+    prefix = _private_mounts()
+    if isinstance(prefix, str):
+        pytest.skip(prefix)
+    path, body = scan_file
+    robot_host, elsewhere = tmp_path / "robot-host", tmp_path / "elsewhere"  # elsewhere: empty but in the robot's
+    robot_host.mkdir()
+    elsewhere.mkdir()
+    shutil.copy(path, robot_host / "room.pcd")
+    scene = {"name": "scanned", "robot": {"position": [0, 0, 0.6]}, "bodies": [TABLE, {**body, "file": "room.pcd"}]}
+    (robot_host / "scene.json").write_text(json.dumps(scene))
+    (tmp_path / "bare.json").write_text(json.dumps({**scene, "bodies": [TABLE]}))
+    log = tmp_path / "farbot.log"
+    robot = subprocess.Popen(
+        [*prefix, "sh", "-c", 'mount --bind "$0" "$1" && shift && exec "$@"', str(robot_host), str(elsewhere),
+         *lights.cli_args("robot", "ur10.urdf", "--scene", str(elsewhere / "scene.json"), "--name", "farbot",
+                          "--samples", "1500", "--collision-model", "exact", "--speed", "max")],
+        stdout=open(log, "wb"), stderr=subprocess.STDOUT, cwd=REPO, start_new_session=True)
+    try:
+        def generated() -> dict | None:
+            r = httpx.get(f"{lights.http}/farbot", timeout=10)
+            td = r.json() if r.status_code == 200 else {}
+            return td if any(link.get("rel") == WORKSPACE for link in td.get("links", [])) else None
+
+        try:
+            td = eventually(generated, timeout=300, what="farbot's generated TD")
+        except AssertionError:
+            print(log.read_text()[-3000:])
+            raise
+        assert not any(elsewhere.iterdir()), "the robot's files are visible on the lab's side"
+        href = next(link["href"] for link in td["links"] if link.get("rel") == POINTS)
+        rows = np.loadtxt(httpx.get(href, timeout=60).text.splitlines()[1:], delimiter=",")[:400]
+    finally:
+        assert stop_process(robot)
+    qs, flags = np.radians(rows[:, 4:]), rows[:, 3] != 0
+    ur10 = Robot.load("ur10.urdf")
+    scanned, bare = CollisionWorld(ur10, load_scene(robot_host / "scene.json")), CollisionWorld(
+        ur10, load_scene(tmp_path / "bare.json"))
+    try:
+        with_scan, without = scanned.colliding(qs), bare.colliding(qs)
+    finally:
+        scanned.close()
+        bare.close()
+    assert (flags == with_scan).mean() >= 0.99  # the file's joints are rounded to 0.001 deg: a grazing contact may flip
+    assert (flags & ~without).sum() >= 5, "no flag comes from the scan"
