@@ -194,15 +194,42 @@ def merge_cells(cells: np.ndarray, axes=(0, 1, 2)) -> tuple[np.ndarray, np.ndarr
         others = [a for a in range(3) if a != axis]
         # boxes that agree on everything but `axis` and touch along it are one
         keys = np.column_stack([lo[:, others], hi[:, others]])
-        order = np.lexsort((lo[:, axis], *keys.T[::-1]))
-        lo, hi, keys = lo[order], hi[order], keys[order]
-        same = np.all(keys[1:] == keys[:-1], axis=1) & (lo[1:, axis] == hi[:-1, axis] + 1)
+        packed = _row_keys(np.column_stack([keys, lo[:, axis]]))
+        if packed is None:  # too wide for one int64: sorted as rows
+            order = np.lexsort((lo[:, axis], *keys.T[::-1]))
+            lo, hi, keys = lo[order], hi[order], keys[order]
+            agree = np.all(keys[1:] == keys[:-1], axis=1)
+        else:  # the same order (no two boxes share their other sides and their low end: they would overlap)
+            order = np.argsort(packed)
+            lo, hi, packed = lo[order], hi[order], packed[order]
+            group = packed >> _bits(lo[:, axis])
+            agree = group[1:] == group[:-1]
+        same = agree & (lo[1:, axis] == hi[:-1, axis] + 1)
         starts = np.flatnonzero(np.concatenate([[True], ~same]))
         ends = np.concatenate([starts[1:], [len(lo)]]) - 1
         new_hi = hi[starts].copy()
         new_hi[:, axis] = hi[ends, axis]
         lo, hi = lo[starts], new_hi
     return lo, hi
+
+
+def _bits(column: np.ndarray) -> int:
+    return int(column.max() - column.min()).bit_length() if len(column) else 0
+
+
+def _row_keys(rows: np.ndarray) -> np.ndarray | None:
+    """Integer rows (N, k) as one int64 each, ordered and equal as the rows are (the last column lowest), or
+    None when their spans need more than 63 bits: one sort of numbers, not a sort by k columns."""
+    if not len(rows):
+        return np.zeros(0, dtype=np.int64)
+    spans = rows - rows.min(axis=0)
+    widths = [_bits(spans[:, k]) for k in range(rows.shape[1])]
+    if sum(widths) > 63:
+        return None
+    packed = np.zeros(len(rows), dtype=np.int64)
+    for k, width in enumerate(widths):
+        packed = (packed << width) | spans[:, k]
+    return packed
 
 
 def _rect_mesh(lows: np.ndarray, highs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
