@@ -92,8 +92,15 @@ def _nan_pcd(path):
     PointCloud.from_xyz_points(np.full((40, 3), np.nan, dtype=np.float32)).save(path, encoding=Encoding.BINARY_COMPRESSED)
 
 
+def _cut_pcd(path):
+    """A binary_compressed PCD whose compressed block is cut short (a copy interrupted)."""
+    whole = write_pcd(render_scan(ROOM, eye=(1.4, -1.3, 1.5), target=(0.0, 0.2, 0.4), size=(32, 24), seed=4), path)
+    path.write_bytes(whole.read_bytes()[:-200])
+
+
 @pytest.mark.parametrize("name, make, said", [
     ("missing.pcd", None, "file not found"),
+    ("cut.pcd", _cut_pcd, "compressed data"),
     ("empty.pcd", lambda p: p.write_bytes(b""), "empty"),
     ("garbage.pcd", lambda p: p.write_bytes(b"\x00\x01not a pcd at all" * 20), "cannot read"),
     ("garbage.las", lambda p: p.write_bytes(b"LASF but nothing else" * 20), "LAS header is broken"),
@@ -176,6 +183,16 @@ def test_merged_boxes_cover_exactly_the_occupied_voxels():
     assert len(covered) == len(set(covered)) == len(cells)  # no voxel twice
     assert set(covered) == {tuple(c) for c in cells}
     assert len(lo) < len(cells) - 20  # the 6 x 5 slab is a few boxes, not 30
+
+
+def test_cells_too_far_apart_for_one_sort_key_merge_all_the_same():
+    from tdgen.robot.scan_bodies import merge_cells
+
+    slab = np.argwhere(np.ones((4, 3, 2), dtype=bool))
+    cells = np.vstack([slab, slab + (1 << 20)])  # five spans of 21 bits each: more than one int64 holds
+    lo, hi = merge_cells(cells)
+    far = 1 << 20
+    assert sorted(map(tuple, np.hstack([lo, hi]))) == [(0, 0, 0, 3, 2, 1), (far, far, far, far + 3, far + 2, far + 1)]
 
 
 def test_a_body_made_where_a_scan_was_removed_is_itself_to_the_fast_model(tmp_path):
