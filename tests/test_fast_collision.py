@@ -73,8 +73,6 @@ def test_every_zoo_arm_gets_the_exact_tests_answers(name):
     assert called_sure_free == 0, f"{called_sure_free} samples called colliding are free"
 
 
-@pytest.mark.lab  # minutes of CPU: the lab layer
-@pytest.mark.slow  # in a fresh clone it compiles the planner's one-thread and one-state loops: 77-87 s on its own
 @pytest.mark.parametrize("name", ["ur10 beside tilted boxes", "uarm iot-platform"])
 def test_a_planners_checks_on_the_packed_tables_get_the_sampling_loops_verdicts(name):
     """A planner's loop (one thread, the tables packed in three arrays and unpacked by name) and the sampling
