@@ -17,11 +17,9 @@ from pathlib import Path
 
 import msgspec
 
-from mesh.messages.scene_description import TwinDescription
+from mesh.messages.scene_description import FILE_BODIES, TwinDescription
 from mesh.wot.problem import Problem
 from tdgen.robot.errors import SceneError
-
-FILE_BODIES = ("mesh", "points")  # the scene body types that name a file
 
 
 def fetched_twin(twin: TwinDescription, folder: Path,

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from mesh.messages import relations
+from mesh.messages.scene_description import FILE_BODIES
 from mesh.wot.problem import NotFound
 from mesh.wot.thing_description import Link
 
@@ -30,7 +31,6 @@ MEDIA_TYPES = {".stl": "model/stl", ".obj": "model/obj", ".gltf": "model/gltf+js
                ".laz": "application/vnd.laszip", ".csv": "text/csv", ".xyz": "text/plain", ".pts": "text/plain",
                ".txt": "text/plain", ".off": "text/plain"}
 UNREGISTERED = "application/octet-stream"
-FILE_BODIES = ("mesh", "points")  # the scene body types that name a file
 
 
 def media_type(path: str | Path) -> str:

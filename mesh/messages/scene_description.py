@@ -15,6 +15,7 @@ from mesh.messages import relations
 
 WORLD_THING = "world"
 SCENE_FILE = "scene.json"
+FILE_BODIES = ("mesh", "points")  # the scene body types that name a file (a CAD mesh, a scan)
 POSES_PROPERTY = "poses"
 
 

@@ -167,7 +167,7 @@ def _voxels(points: np.ndarray, voxel: float) -> Prepared:
     lows, highs = np.vstack(rects_lo), np.vstack(rects_hi)
     parts = [_rect_mesh(lows[g], highs[g]) for g in _split((lows + highs) / 2, MAX_PARTS)]
     stats = {"points": len(points), "voxels": len(cells), "boxes": len(boxes), "faces": len(lows)}
-    return Prepared("voxels", parts, stats, _column_min(lows), -_column_min(-highs), boxes)
+    return Prepared("voxels", parts, stats, _column_min(lows), _column_max(highs), boxes)
 
 
 _BITS = 21  # per axis in a cell's key: 2 million voxels across
@@ -218,6 +218,11 @@ def _column_min(rows: np.ndarray) -> np.ndarray:
     return np.array([rows[:, k].min() for k in range(rows.shape[1])], dtype=rows.dtype)
 
 
+def _column_max(rows: np.ndarray) -> np.ndarray:
+    """`rows.max(axis=0)`, as `_column_min`."""
+    return np.array([rows[:, k].max() for k in range(rows.shape[1])], dtype=rows.dtype)
+
+
 def _bits(column: np.ndarray) -> int:
     return int(column.max() - column.min()).bit_length() if len(column) else 0
 
@@ -261,7 +266,7 @@ def _split(centres: np.ndarray, groups: int) -> list[np.ndarray]:
         if len(idx) < 2:
             break
         pts = centres[idx]
-        axis = int(np.argmax(-_column_min(-pts) - _column_min(pts)))
+        axis = int(np.argmax(_column_max(pts) - _column_min(pts)))
         half = len(idx) // 2
         order = idx[np.argpartition(pts[:, axis], half)]  # the lower half first, each half in no order
         pending[k:k + 1] = [order[:half], order[half:]]

@@ -345,8 +345,12 @@ def _quiet_static_pairs(client: int, new: list[int]) -> None:
 def content_key(body: Body) -> bytes:
     """What a body is as collision geometry: its description and, for a scan or mesh, its file's content (a
     newer scan written under the same name is another body), for what is kept per body between scene changes."""
+    if isinstance(body, FileBody) and Path(body.file).is_file():
+        from tdgen.robot.scan_io import content_digest  # the file hashed (or its hash kept), nothing read or built
+
+        return msgspec.json.encode(body) + content_digest(Path(body.file)).encode()
     if isinstance(body, FileBody):
-        return msgspec.json.encode(body) + prepare(body).key.encode()
+        return msgspec.json.encode(body) + prepare(body).key.encode()  # raises the scene error naming the file
     return msgspec.json.encode(body)
 
 
