@@ -7,6 +7,7 @@ The first start's time is measured in tests/bench/bench_first_start.py.
 """
 from __future__ import annotations
 
+import importlib.util
 import json
 import logging
 import os
@@ -14,6 +15,7 @@ import subprocess
 import sys
 import threading
 import types
+from pathlib import Path
 
 import numpy as np
 from waiting import eventually
@@ -58,6 +60,27 @@ def test_twinmesh_cache_and_numba_cache_dir_still_win(tmp_path):
                     "NUMBA_CACHE_DIR": str(tmp_path / "numba")})
     assert where["tdgen"] == str(tmp_path / "mine" / "tdgen")
     assert where["numba"] == str(tmp_path / "numba")
+
+
+def test_the_same_code_in_another_place_compiles_afresh(monkeypatch, tmp_path):
+    """numba keeps compiled code per source folder: a second install (another venv, a fresh clone) has none
+    of it, so it must not take the first one's stamp for its own (its every process would then compile the
+    kernel itself, a minute of CPU each, instead of one compile in the background)."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
+    copy_dir = tmp_path / "elsewhere" / "robot"
+    copy_dir.mkdir(parents=True)
+    for name in ("cores.py", *cores.COMPILED_MODULES):
+        (copy_dir / name).write_bytes((Path(cores.__file__).parent / name).read_bytes())
+    spec = importlib.util.spec_from_file_location("cores_elsewhere", copy_dir / "cores.py")
+    elsewhere = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(elsewhere)
+    monkeypatch.setattr(cores, "_compiling_here", threading.Event())  # not this process's compile, whatever ran
+    cores.compiled_stamp().parent.mkdir(parents=True)
+    cores.compiled_stamp().touch()  # compiled here
+    assert cores.compiled()
+    assert not elsewhere.compiled(), "the copy took the compile of the code it was copied from for its own"
+    elsewhere.compiled_stamp().touch()
+    assert elsewhere.compiled()
 
 
 def test_a_machine_without_the_compiled_model_gets_the_same_workspace_without_waiting_for_it(monkeypatch):

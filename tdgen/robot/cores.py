@@ -66,9 +66,11 @@ COMPILED_MODULES = ("sphere_kernel.py", "points_csv.py", "kinematics.py")  # our
 
 
 def compiled_stamp() -> Path:
-    """The file `fast_collision.compile_all` writes once it has compiled everything, named after what the
-    compiled code depends on (our compiled modules' sources, numba, Python, the machine), so that a new
-    version, or another machine sharing the home directory, compiles afresh."""
+    """The file `fast_collision.compile_all` writes once it has compiled everything, named after what numba's
+    cache is valid for: our compiled modules' folder (numba keeps compiled code per source folder) and what
+    they hold, numba, Python and the machine. A new version, the same code in another place (a second venv,
+    a fresh clone: nothing compiled for it yet, whatever the first one compiled), or another machine sharing
+    the home directory compiles afresh."""
     return compiled_code_dir() / f"twinmesh-compiled-{_sources_hash()}"
 
 
@@ -79,8 +81,10 @@ def _sources_hash() -> str:
     from importlib.metadata import version
 
     h = hashlib.sha256(f"{version('numba')} {sys.version} {platform.machine()}".encode())
+    folder = os.path.abspath(Path(__file__).parent)  # as numba names it: no symlink resolved
+    h.update(folder.encode())
     for name in COMPILED_MODULES:
-        h.update((Path(__file__).parent / name).read_bytes())
+        h.update((Path(folder) / name).read_bytes())
     return h.hexdigest()[:16]
 
 
