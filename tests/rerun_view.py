@@ -1,11 +1,12 @@
-"""Rerun's view in tests: a recording's transform frames, and the web viewer in a headless Chromium.
+"""Rerun's view in tests: a recording's transform frames and joints, and the web viewer in headless Chromium.
 
-`frame_owners` reads a recording back through rerun-sdk's own reader and says which entities log
-each named transform frame (Rerun refuses a frame that two entities log statically, or two
-temporally: "Two entities define the same child frame"). `ViewerPage` opens Rerun's web viewer with
-`browser.chromium` (shared with the control page's tests) and keeps what the page says on its
-console and which hosts it asks, so a test can find Rerun's errors and any request that leaves the
-machine; `pixels` reads the page as an RGB array.
+`joint_values` and `frame_transforms` read a robot's joints back (one entity for its values, one series
+per joint; one for its transforms, one frame per row). `frame_owners` reads a recording back through
+rerun-sdk's own reader and says which entities log each named transform frame (Rerun refuses a frame
+that two entities log statically, or two temporally: "Two entities define the same child frame").
+`ViewerPage` opens Rerun's web viewer with `browser.chromium` (shared with the control page's tests)
+and keeps what the page says on its console and which hosts it asks, so a test can find Rerun's
+errors and any request that leaves the machine; `pixels` reads the page as an RGB array.
 """
 from __future__ import annotations
 
@@ -41,6 +42,41 @@ def frame_owners(path: Path) -> dict[tuple[str, bool], set[str]]:
             for frame in frames or []:
                 owners[(frame, chunk.is_static)].add(chunk.entity_path)
     return dict(owners)
+
+
+def joint_values(path: Path, entity: str, joint: str) -> list[float]:
+    """One joint's values in recording order, from a robot's joints entity: one `Scalars` series per joint,
+    named `<joint> (<unit>)` in row order by its `SeriesLines` (rows from before the joint joined left out)."""
+    from recordings import read_column
+
+    index = list(joint_units(path, entity)).index(joint)
+    return [row[index] for row in read_column(path, entity, "Scalars:scalars") if len(row) > index]
+
+
+def joint_units(path: Path, entity: str) -> dict[str, str]:
+    """Joint -> the unit its series is named with, in the order of a row of the robot's joints entity."""
+    from recordings import latest_static
+
+    names = latest_static(path, entity, "SeriesLines:names")
+    return dict(re.fullmatch(r"(.+) \((.+)\)", n).groups() for n in names)  # type: ignore[union-attr]
+
+
+def frame_transforms(path: Path, entity: str, frame: str) -> list[dict]:
+    """The transforms an entity logs over time for one child frame, in `seq` order: translation, quaternion
+    and parent frame of each row (a robot's joints entity names a frame in each row)."""
+    from rerun.chunk import RrdReader
+
+    rows = []
+    for chunk in RrdReader(path).stream().filter(content=entity, is_static=False):
+        batch = chunk.to_record_batch()
+        if chunk.entity_path != entity or "Transform3D:child_frame" not in batch.schema.names:
+            continue
+        columns = {c: batch.column(f"Transform3D:{c}").to_pylist()
+                   for c in ("child_frame", "parent_frame", "translation", "quaternion")}
+        for i, seq in enumerate(batch.column("seq").to_pylist()):
+            if columns["child_frame"][i] == [frame]:
+                rows.append((seq, {c: columns[c][i][0] for c in ("translation", "quaternion", "parent_frame")}))
+    return [r for _, r in sorted(rows, key=lambda r: r[0])]
 
 
 def shared_frames(path: Path) -> dict[tuple[str, bool], set[str]]:

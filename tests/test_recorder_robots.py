@@ -16,7 +16,8 @@ import msgspec
 import numpy as np
 import pytest
 from labs import REPO, start_lab, stop_process
-from rerun_view import shared_frames
+from rerun_view import frame_transforms, joint_values, shared_frames
+from rerun_view import joint_units as series_units
 
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.relations import MODEL, POINTS, WORKSPACE
@@ -161,10 +162,11 @@ def test_robot_recording_verifies(recording):
 
 
 def test_each_joint_is_a_series_in_rad_in_order(recording):
-    pan = scalars(recording, "/robots/ur10/joints/shoulder_pan_joint")
+    pan = joint_values(recording, "/robots/ur10/joints", "shoulder_pan_joint")
     assert pan == pytest.approx([0.0] + [math.radians(d) for d in SWEEP_DEG])
-    assert scalars(recording, "/robots/ur10/joints/elbow_joint") == pytest.approx(
+    assert joint_values(recording, "/robots/ur10/joints", "elbow_joint") == pytest.approx(
         [0.0] + [math.radians(ELBOW_DEG)] * len(SWEEP_DEG))
+    assert series_units(recording, "/robots/ur10/joints") == {j: "rad" for j in JOINTS}
     assert not scalars(recording, "/things/ur10/properties/getJointposition/shoulder_pan_joint")
 
 
@@ -182,11 +184,12 @@ def test_robot_is_drawn_from_its_urdf_at_its_base_in_its_own_world(recording):
 
 
 def test_joint_transforms_follow_the_sweep(recording):
-    entity = "/robots/ur10/model/joints/shoulder_pan_joint"
-    assert {f[0] for f in read_column(recording, entity, "Transform3D:child_frame")} == {"robots/ur10/shoulder_link"}
-    quaternions = [v[0] for v in read_column(recording, entity, "Transform3D:quaternion")]
+    rows = frame_transforms(recording, "/robots/ur10/model/joints", "robots/ur10/shoulder_link")
+    assert {r["parent_frame"] for r in rows} == {"robots/ur10/base_link"}
+    quaternions = [r["quaternion"] for r in rows]
     angles = [2 * math.atan2(z, w) for _, _, z, w in quaternions]  # the URDF's axis is +z
-    assert angles == pytest.approx([0.0] + [math.radians(d) for d in SWEEP_DEG], abs=1e-5)
+    # the sweep starts where the pan is: a joint that did not move is not logged again (it holds)
+    assert angles == pytest.approx([0.0] + [math.radians(d) for d in SWEEP_DEG[1:]], abs=1e-5)
 
 
 def test_workspace_points_are_split_by_collision_and_coloured(recording):
@@ -258,8 +261,8 @@ def test_a_robot_in_the_worlds_scene_is_drawn_once_with_the_things_workspace(tmp
     assert not static_values(path, "/robots/ur10/model/base", "Transform3D:child_frame")
     assert latest(path, "/world/robots/ur10/base", "Transform3D:child_frame") == ["ur10/base_link"]
     assert latest(path, "/robots/ur10/workspace/hull", "CoordinateFrame:frame") == ["ur10/base_link"]
-    assert scalars(path, "/robots/ur10/joints/shoulder_pan_joint") == pytest.approx([math.radians(SWEEP_DEG[3])])
-    assert not read_column(path, "/robots/ur10/model/joints/shoulder_pan_joint", "Transform3D:child_frame")
+    assert joint_values(path, "/robots/ur10/joints", "shoulder_pan_joint") == pytest.approx([math.radians(SWEEP_DEG[3])])
+    assert not read_column(path, "/robots/ur10/model/joints", "Transform3D:child_frame")
 
 
 def test_a_world_that_takes_a_robot_over_clears_the_things_model(tmp_path):
@@ -343,7 +346,7 @@ def test_a_bad_urdf_is_reported_and_the_joints_still_recorded(tmp_path):
         robots.flush()
 
     path = _drawn(tmp_path, draw)
-    assert scalars(path, "/robots/arm/joints/j1") == pytest.approx([math.pi / 2])
+    assert joint_values(path, "/robots/arm/joints", "j1") == pytest.approx([math.pi / 2])
 
 
 def test_units_come_from_the_td():
@@ -410,10 +413,10 @@ def test_a_ur10_thing_is_recorded_with_its_trajectory_and_workspace(tmp_path):
     finally:
         assert lab.stop(), "the lab did not stop cleanly on Ctrl-C"
     assert subprocess.run([RERUN, "rrd", "verify", str(path)], capture_output=True, timeout=60).returncode == 0
-    series = [scalars(path, f"/robots/ur10/joints/{j}") for j in JOINTS]
+    series = [joint_values(path, "/robots/ur10/joints", j) for j in JOINTS]
     assert all(series), "a UR10 joint has no series"
     assert any(max(s) - min(s) > 0.01 for s in series), "the UR10 never moved"
-    assert read_column(path, "/robots/ur10/model/joints/shoulder_pan_joint", "Transform3D:child_frame")
+    assert frame_transforms(path, "/robots/ur10/model/joints", "robots/ur10/shoulder_link")
     free = latest(path, "/robots/ur10/workspace/points/free", "Points3D:positions")
     colliding = static_values(path, "/robots/ur10/workspace/points/colliding", "Points3D:positions")[-1]
     assert len(free) + len(colliding) == 3000

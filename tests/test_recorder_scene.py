@@ -13,6 +13,7 @@ from pathlib import Path
 import msgspec
 import pytest
 from labs import REPO, start_lab, stop_process
+from rerun_view import frame_transforms, joint_units, joint_values
 
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.scene_description import Body, Pose, Poses, RobotModel, SceneDescription
@@ -104,21 +105,30 @@ def test_scene_recording_verifies(recording):
     assert r.returncode == 0, r.stdout + r.stderr
 
 
-def test_joint_column_holds_the_sweep_in_order(recording):
-    assert scalars(recording, "/world/joints/uarm/lower_arm") == pytest.approx([0.05] + SWEEP)
-    assert scalars(recording, "/world/joints/uarm/upper_arm") == pytest.approx([0.5])  # held: logged once
+def test_each_joint_is_a_series_in_its_unit_holding_the_sweep_in_order(recording):
+    """One entity per robot, one series per joint: a sample in which a joint moved is a row of all of them."""
+    assert joint_values(recording, "/world/joints/uarm", "lower_arm") == pytest.approx([0.05] + SWEEP)
+    assert joint_values(recording, "/world/joints/uarm", "upper_arm") == pytest.approx([0.5] * len(SWEEP))
+    units = joint_units(recording, "/world/joints/uarm")
+    assert set(units) == {"base", "lower_arm", "elbow_passive", "upper_arm", "wrist_passive", "hand"}
+    assert set(units.values()) == {"rad"}
 
 
 def test_joints_are_on_the_sim_time_timeline(recording):
-    assert sim_times(recording, "/world/joints/uarm/lower_arm") == pytest.approx(
+    assert sim_times(recording, "/world/joints/uarm") == pytest.approx(
         [0.0] + [pose_sample(i).time for i in range(len(SWEEP))])
 
 
+def test_a_joint_that_holds_has_its_transform_logged_once(recording):
+    assert len(frame_transforms(recording, "/world/robots/uarm/joints", "uarm/upper_arm")) == 1
+    # elbow_passive (its child link: elbow) moves with lower_arm, from the second sample on
+    assert len(frame_transforms(recording, "/world/robots/uarm/joints", "uarm/elbow")) == len(SWEEP)
+
+
 def test_joint_transforms_are_computed_from_the_urdf(recording):
-    entity = "/world/robots/uarm/joints/lower_arm"
-    frames = read_column(recording, entity, "Transform3D:child_frame")
-    assert frames and {f[0] for f in frames} == {"uarm/lower_arm"}
-    quaternions = [v[0] for v in read_column(recording, entity, "Transform3D:quaternion")]
+    rows = frame_transforms(recording, "/world/robots/uarm/joints", "uarm/lower_arm")
+    assert rows and {r["parent_frame"] for r in rows} == {"uarm/turret"}
+    quaternions = [r["quaternion"] for r in rows]
     angles = [2 * math.atan2(math.hypot(x, y, z), w) for x, y, z, w in quaternions]
     assert angles == pytest.approx([0.05] + SWEEP, abs=1e-5)
     # the URDF's axis is -y: a positive angle is a rotation about -y
@@ -185,8 +195,8 @@ def test_two_robots_from_one_urdf_keep_their_own_frames(tmp_path):
     for robot in ("left", "right"):
         tf_static = static_column(path, f"/world/robots/{robot}/tf_static", "Transform3D:child_frame")
         assert {f[0] for f in tf_static} >= {f"{robot}/turret", f"{robot}/hand"}
-        assert read_column(path, f"/world/robots/{robot}/joints/base", "Transform3D:child_frame") == [[f"{robot}/turret"]]
-    assert scalars(path, "/world/joints/left/base") == [0.5]
+        assert len(frame_transforms(path, f"/world/robots/{robot}/joints", f"{robot}/turret")) == 1
+    assert joint_values(path, "/world/joints/left", "base") == [0.5]
 
 
 def test_a_bad_urdf_is_reported_and_the_rest_is_drawn(tmp_path):
@@ -239,7 +249,8 @@ def test_cube_workflow_recording_shows_both_arms_and_the_cube_round_trip(tmp_pat
 
     entities = [str(e) for e in RrdReader(path).stream().collect().schema().entity_paths()]
     for robot in ("uarm", "dobot"):
-        series = [scalars(path, e) for e in entities if e.startswith(f"/world/joints/{robot}/")]
+        names = joint_units(path, f"/world/joints/{robot}") if f"/world/joints/{robot}" in entities else {}
+        series = [joint_values(path, f"/world/joints/{robot}", j) for j in names]
         assert series, f"no joint series for {robot}"
         assert any(max(v) - min(v) > 0.1 for v in series if v), f"{robot}'s joints never moved"
         assert static_column(path, f"/world/robots/{robot}/tf_static", "Transform3D:child_frame")

@@ -6,7 +6,8 @@ before it is current. A state logged once and then left alone (a lamp switched o
 obstacle, a joint at rest, a Thing's TD) would drop out of that part, and the late viewer would draw
 it as it was at the start (or not at all). So the view's RecordingStream is wrapped: every temporal
 value logged through it is remembered per entity and component (the last row of a `send_columns`
-batch), the bytes logged are counted, and on each flush an entity behind which `budget` bytes have
+batch; of an entity whose rows name transform frames, the last row of each frame: a robot's joints),
+the bytes logged are counted, and on each flush an entity behind which `budget` bytes have
 been logged since it was last logged is logged again as it is now, at the present time. With a
 budget well under the server's limit, that newest part always holds the whole current state,
 however long the lab has run; a quiet lab logs nothing again (nothing is dropped), and a browser
@@ -36,6 +37,8 @@ class _Row:
         return self._array
 
 
+CHILD_FRAME = "Transform3D:child_frame"
+_Key = tuple[str, "str | None"]  # an entity, and the transform frame its rows name (None: it names none)
 CHUNK_COST = 1024  # bytes counted per log call besides its data: a chunk's schema and metadata on the wire
 
 
@@ -47,8 +50,8 @@ class LiveState:
         self.rec = rec
         self.budget = budget
         self.logged = 0  # bytes of temporal data logged so far (estimated)
-        self._state: dict[str, dict[str, Any]] = {}  # entity -> component -> its latest value
-        self._at: dict[str, int] = {}  # entity -> `logged` when it was last logged
+        self._state: dict[_Key, dict[str, Any]] = {}  # (entity, frame) -> component -> its latest value
+        self._at: dict[_Key, int] = {}  # (entity, frame) -> `logged` when it was last logged
         self._times: dict[str, dict[str, Any]] = {}  # timeline -> the set_time arguments now in force
 
     def __getattr__(self, name: str) -> Any:
@@ -69,13 +72,19 @@ class LiveState:
         if isinstance(entity, rr.Clear):
             self._forget(path, _recursive(entity))
         elif not isinstance(entity, rr.TextLog):
-            self._remember(path, batches)
+            self._remember((path, None), batches)
 
     def send_columns(self, path: str, indexes: Any, columns: Any, **kwargs: Any) -> None:
         self.rec.send_columns(path, indexes, columns, **kwargs)
         arrays = [(c.component_descriptor(), c.as_arrow_array()) for c in columns]
         self.logged += CHUNK_COST + sum(a.nbytes for _, a in arrays)
-        self._remember(path, [_Row(d, a[-1].values) for d, a in arrays])
+        frames = next((a for d, a in arrays if d.component == CHILD_FRAME), None)
+        if frames is None:
+            self._remember((path, None), [_Row(d, a[-1].values) for d, a in arrays])
+            return
+        last = {str(f[0]) if len(f) else None: i for i, f in enumerate(frames.to_pylist())}  # frame -> its last row
+        for frame, i in last.items():
+            self._remember((path, frame), [_Row(d, a[i].values) for d, a in arrays])
 
     def flush(self, *args: Any, **kwargs: Any) -> None:
         self.log_current_state()
@@ -84,33 +93,33 @@ class LiveState:
     def log_current_state(self) -> int:
         """Log again, at the present time, each entity behind which `budget` bytes have been logged;
         returns how many."""
-        due = [path for path, at in self._at.items() if self.logged - at >= self.budget]
+        due = [key for key, at in self._at.items() if self.logged - at >= self.budget]
         if not due or "time" not in self._times:
             return 0
         self.rec.set_time("time", timestamp=time.time())
-        for path in due:
-            batches = list(self._state[path].values())
-            self.rec.log(path, batches)
+        for key in due:
+            batches = list(self._state[key].values())
+            self.rec.log(key[0], batches)
             self._count(batches)
-            self._at[path] = self.logged
+            self._at[key] = self.logged
         self.rec.set_time("time", **self._times["time"])  # what is logged next keeps its own time
         return len(due)
 
     def _count(self, batches: list[Any]) -> None:
         self.logged += CHUNK_COST + sum(b.as_arrow_array().nbytes for b in batches)
 
-    def _remember(self, path: str, batches: list[Any]) -> None:
+    def _remember(self, key: _Key, batches: list[Any]) -> None:
         if not batches:
             return
-        state = self._state.setdefault(path, {})
+        state = self._state.setdefault(key, {})
         for batch in batches:
             state[str(batch.component_descriptor())] = batch
-        self._at[path] = self.logged
+        self._at[key] = self.logged
 
     def _forget(self, path: str, recursive: bool) -> None:
-        gone = [p for p in self._state if p == path or (recursive and p.startswith(path.rstrip("/") + "/"))]
-        for p in gone:
-            del self._state[p], self._at[p]
+        gone = [k for k in self._state if k[0] == path or (recursive and k[0].startswith(path.rstrip("/") + "/"))]
+        for k in gone:
+            del self._state[k], self._at[k]
 
 
 def _recursive(clear: rr.Clear) -> bool:

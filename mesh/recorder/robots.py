@@ -13,14 +13,15 @@ frame `tf#/robots/<r>` is the robot's scene frame, and its links are the frames 
 (a frame name belongs to one entity: the world's robots are `<r>/<link>`):
 - `robots/<r>/model/...`: the URDF's geometry and zero-pose joints, `robots/<r>/model/base` its base
   in its scene frame (static; drawn again when twin.json or the URDF change), and
-  `robots/<r>/model/joints/<j>` each joint's transform over time;
+  `robots/<r>/model/joints` the joints' transforms over time (one row per joint that moved, naming its
+  frame: `mesh.recorder.joint_rows`);
 - `robots/<r>/scene/<b>`: the bodies of its scene (twin.json's `scene`: boxes, cylinders, URDFs found
   on this machine, and from the files the Thing serves (`scene_files`) a scan as points and a CAD mesh
   as a mesh, `mesh.recorder.scene_assets`), static, placed by the body's pose, those a new twin.json
   drops cleared;
-- `robots/<r>/joints/<j>`: each joint's value as a time series in rad or m (the Thing reports deg
-  and mm, as its TD's `unit`s say), batched like the world's poses; `getJointposition` is not also
-  logged as a plain property;
+- `robots/<r>/joints`: the joints' values as time series in rad or m, one series per joint (the Thing
+  reports deg and mm, as its TD's `unit`s say), batched like the world's poses, a value that did not
+  move not logged again; `getJointposition` is not also logged as a plain property;
 - `robots/<r>/workspace/points/free` (green) and `.../points/colliding` (red): the sampled
   end-effector positions; `robots/<r>/workspace/hull`: the hull, semi-transparent; all three in the
   robot's base frame (m). Static, one log call each: a regenerated workspace replaces the previous
@@ -48,6 +49,7 @@ import rerun as rr
 
 from mesh.messages import relations
 from mesh.messages.scene_description import MODEL_REL, TWIN_FILE, TWIN_REL, Body, Pose, TwinDescription
+from mesh.recorder.joint_rows import JointRows, send_values
 from mesh.recorder.mapping import Entry
 from mesh.recorder.scene_assets import Asset, asset_archetype, read_asset
 from mesh.recorder.scene_drawer import (
@@ -55,7 +57,6 @@ from mesh.recorder.scene_drawer import (
     BATCH_ROWS,
     ROBOTS,
     DrawnRobot,
-    SampleBatch,
     SceneDrawer,
     body_shape,
     thing_robot_path,
@@ -306,8 +307,8 @@ class RobotDrawer:
         self.scene = scene
         self.batch_rows, self.batch_age = batch_rows, batch_age
         self.things: dict[str, _RobotThing] = {}
-        self._joints: dict[tuple[str, str], SampleBatch] = {}
-        self._styled: dict[str, str] = {}  # joint series -> the unit its name was logged with
+        self._joints: dict[str, JointRows] = {}  # robot -> its joints (their latest values kept)
+        self._styled: dict[str, list[str]] = {}  # joint values entity -> the series names logged
         self._path_frames: dict[str, str] = {}  # robot -> the frame its path entity was placed in
         self._rows = 0
         self._oldest: float | None = None
@@ -471,14 +472,11 @@ class RobotDrawer:
         if not isinstance(values, dict):
             return
         t = self.things.setdefault(thing, _RobotThing())
-        for joint, v in values.items():
-            if not isinstance(v, (int, float)) or isinstance(v, bool):
-                continue
-            factor, _ = self._unit(t, joint)
-            batch = self._joints.get((thing, joint))
-            if batch is None:
-                batch = self._joints[(thing, joint)] = SampleBatch()
-            batch.add(wall, seq, sim, float(v) * factor)
+        rows = self._joints.get(thing)
+        if rows is None:
+            rows = self._joints[thing] = JointRows()
+        rows.add(wall, seq, sim, {joint: float(v) * self._unit(t, joint)[0] for joint, v in values.items()
+                                  if isinstance(v, (int, float)) and not isinstance(v, bool)})
         self._rows += 1
         if self._oldest is None:
             self._oldest = time.monotonic()
@@ -494,18 +492,16 @@ class RobotDrawer:
             self._rows >= self.batch_rows or time.monotonic() - self._oldest >= self.batch_age)
 
     def flush(self) -> None:
-        """One `send_columns` per joint series and per joint transform (rows that fail are dropped)."""
-        joints = self._joints
-        self._joints, self._rows, self._oldest = {}, 0, None
+        """Per robot, one `send_columns` for its joints' values and one for their transforms (rows that
+        fail are dropped)."""
+        self._rows, self._oldest = 0, None
         made: dict[tuple[int, ...], list[rr.TimeColumn]] = {}
-        for (thing, joint), batch in joints.items():
-            indexes = batch.indexes(made)
+        for thing, joints in self._joints.items():
+            rows, moved = joints.take()
+            if not rows.values:
+                continue
             t = self.things[thing]
-            path = thing_robot_path(thing, "joints", joint)
-            unit = self._unit(t, joint)[1]
-            if self._styled.get(path) != unit:
-                self.rec.log(path, rr.SeriesLines(names=[f"{joint} ({unit})"]), static=True)
-                self._styled[path] = unit
-            self.rec.send_columns(path, indexes, rr.Scalars.columns(scalars=np.array(batch.values)))
+            units = [self._unit(t, j)[1] for j in joints.names]
+            send_values(self.rec, thing_robot_path(thing, "joints"), joints.names, units, rows, made, self._styled)
             if t.robot is not None:
-                t.robot.send_joint(self.rec, joint, indexes, batch.values)
+                t.robot.send_joints(self.rec, moved)

@@ -17,8 +17,9 @@ Entities (frames: `tf#/world` is the scene frame; robot `r`'s links are the fram
 - `world/robots/<r>/base`: the robot's base pose in the scene (static, from `scene.json`), and
   `world/robots/<r>/base_pose` the same over time when `poses.bodies` names the robot (a Dobot
   travelling on its track);
-- `world/robots/<r>/joints/<j>`: each moving joint's transform over time, computed from the URDF;
-- `world/joints/<r>/<j>`: each joint's value as a time series (rad or m), one entity per joint;
+- `world/robots/<r>/joints`: the moving joints' transforms over time, computed from the URDF, one row
+  per joint that moved naming its frame (`mesh.recorder.joint_rows`: two chunks per robot and flush);
+- `world/joints/<r>`: the joints' values as time series (rad or m), one series per joint;
 - `world/bodies/<b>`: each body as a box, cylinder or sphere with its colour (static) and its pose
   (static, or over time for moving bodies such as cubes), a `points` body (a scan) as its points and a
   `mesh` body (a CAD mesh) as its triangles, from the file the world serves (`mesh.recorder.scene_assets`),
@@ -38,7 +39,7 @@ from __future__ import annotations
 
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +50,8 @@ from rerun.urdf import UrdfJoint, UrdfTree
 
 from mesh.messages.scene_description import SCENE_FILE, Body, Pose, Poses, RobotModel, SceneDescription
 from mesh.recorder import mapping
+from mesh.recorder.batches import SampleBatch
+from mesh.recorder.joint_rows import JointRows, send_transforms, send_values
 from mesh.recorder.mapping import Entry, entity_path
 from mesh.recorder.scene_assets import Asset, asset_archetype, read_asset
 from mesh.urdf_resources import with_absolute_meshes
@@ -97,8 +100,8 @@ def robot_path(robot: str) -> str:
     return entity_path(WORLD, "robots", robot)
 
 
-def joint_value_path(robot: str, joint: str) -> str:
-    return entity_path(WORLD, "joints", robot, joint)
+def joint_values_path(robot: str) -> str:
+    return entity_path(WORLD, "joints", robot)
 
 
 def body_path(body: str) -> str:
@@ -169,49 +172,17 @@ class DrawnRobot:
             chunks.append(chunk)
         return chunks, filled
 
-    def joint_path(self, joint: str) -> str:
-        return f"{self.root}/joints/{rr.escape_entity_path_part(joint)}"
+    @property
+    def joints_path(self) -> str:
+        return f"{self.root}/joints"
 
-    def send_joint(self, rec, joint: str, indexes: list, values: list[float]) -> None:
-        """A joint's transforms over time (values in rad or m), if the URDF has it."""
-        urdf_joint = self.joints.get(joint)
-        if urdf_joint is not None:
-            rec.send_columns(self.joint_path(joint), indexes, urdf_joint.compute_transform_columns(values, clamp=False))
+    def send_joints(self, rec, moved: SampleBatch) -> None:
+        """The transforms of the joints that moved (values in rad or m; those the URDF has), one chunk."""
+        send_transforms(rec, self.joints_path, self.tree, set(self.joints), moved)
 
     def unit(self, joint: str) -> str:
         j = self.joints.get(joint)
         return "m" if j is not None and j.joint_type == "prismatic" else "rad"
-
-
-# --- batches of samples --------------------------------------------------------------------------
-@dataclass
-class SampleBatch:
-    """Rows of one entity waiting for one `send_columns`: the timelines and the values.
-
-    `sim` is None for a row without simulated time (a robot Thing before any world's poses); the
-    batch then goes out on `time` and `seq` only."""
-
-    wall: list[float] = field(default_factory=list)
-    seq: list[int] = field(default_factory=list)
-    sim: list[float | None] = field(default_factory=list)
-    values: list[Any] = field(default_factory=list)
-
-    def add(self, wall: float, seq: int, sim: float | None, value: Any) -> None:
-        self.wall.append(wall)
-        self.seq.append(seq)
-        self.sim.append(sim)
-        self.values.append(value)
-
-    def indexes(self, made: dict[tuple[int, ...], list[rr.TimeColumn]]) -> list[rr.TimeColumn]:
-        """The time columns; batches of the same samples (a robot's joints) share them through `made`."""
-        key = tuple(self.seq)
-        columns = made.get(key)
-        if columns is None:  # numpy arrays: rerun converts lists element by element
-            columns = made[key] = [rr.TimeColumn("time", timestamp=np.array(self.wall)),
-                                   rr.TimeColumn("seq", sequence=np.array(self.seq, dtype=np.int64))]
-            if None not in self.sim:
-                columns.append(rr.TimeColumn("sim_time", duration=np.array(self.sim)))
-        return columns
 
 
 class SceneDrawer:
@@ -226,13 +197,12 @@ class SceneDrawer:
         self._scene: SceneFiles | None = None
         self._assets: dict[tuple, Asset] = {}  # read files, by what they were read from: a redraw reads none again
         self._static_bodies: set[str] = set()  # drawn static (the first scene): cleared static too
-        self._joints: dict[tuple[str, str], SampleBatch] = {}
+        self._joints: dict[str, JointRows] = {}  # robot -> its joints (their latest values kept)
         self._poses: dict[str, SampleBatch] = {}  # body name or robot name (its base) -> poses
         self._states: dict[tuple[str, str], Any] = {}
         self._shown: dict[str, tuple[int, ...]] = {}  # body showing a light -> the colour it was drawn in
-        self._joint_values: dict[tuple[str, str], float] = {}  # the last value logged per joint
         self._body_poses: dict[str, Pose] = {}  # the last pose logged per moving body
-        self._styled: dict[str, str] = {}  # joint series -> the unit its name was logged with
+        self._styled: dict[str, list[str]] = {}  # joint values entity -> the series names logged
         self._rows = 0
         self._oldest: float | None = None  # monotonic time of the oldest unwritten row
 
@@ -312,15 +282,11 @@ class SceneDrawer:
     def add_poses(self, poses: Poses, wall: float, seq: int) -> list[Entry]:
         """Queue one sample's joints and body poses; returns the logs for the states that changed."""
         self.sim_time = sim = poses.time
-        for robot, joints in poses.joints.items():  # every joint of every robot comes each time: the
-            for joint, value in joints.items():     # unchanged ones are not logged again (they hold)
-                if self._joint_values.get((robot, joint)) == value:
-                    continue
-                self._joint_values[(robot, joint)] = float(value)
-                batch = self._joints.get((robot, joint))
-                if batch is None:
-                    batch = self._joints[(robot, joint)] = SampleBatch()
-                batch.add(wall, seq, sim, float(value))
+        for robot, joints in poses.joints.items():  # every joint of every robot comes each time: only
+            rows = self._joints.get(robot)          # a move is logged (the rest hold)
+            if rows is None:
+                rows = self._joints[robot] = JointRows()
+            rows.add(wall, seq, sim, {joint: float(value) for joint, value in joints.items()})
         for name, pose in poses.bodies.items():
             if self._body_poses.get(name) != pose:
                 self._batch_pose(name, pose, wall, seq)
@@ -367,26 +333,22 @@ class SceneDrawer:
             self._rows >= self.batch_rows or time.monotonic() - self._oldest >= self.batch_age)
 
     def flush(self) -> None:
-        """Write every queued row: one `send_columns` per entity (rows that fail to write are dropped)."""
-        joints, poses = self._joints, self._poses
-        self._joints, self._poses, self._rows, self._oldest = {}, {}, 0, None
+        """Write every queued row: one `send_columns` per entity, a robot's joints two (rows that fail to
+        write are dropped)."""
+        poses = self._poses
+        self._poses, self._rows, self._oldest = {}, 0, None
         made: dict[tuple[int, ...], list[rr.TimeColumn]] = {}
-        for (robot, joint), batch in joints.items():
-            self._send_joint(robot, joint, batch, batch.indexes(made))
+        for robot_name, joints in self._joints.items():
+            rows, moved = joints.take()
+            if not rows.values:
+                continue
+            robot = self.robots.get(robot_name)  # named again once its URDF tells a prismatic joint
+            units = [robot.unit(j) if robot is not None else "rad" for j in joints.names]
+            send_values(self.rec, joint_values_path(robot_name), joints.names, units, rows, made, self._styled)
+            if robot is not None:
+                robot.send_joints(self.rec, moved)
         for name, batch in poses.items():
             self._send_poses(name, batch, batch.indexes(made))
-
-    def _send_joint(self, robot_name: str, joint: str, batch: SampleBatch, indexes: list[rr.TimeColumn]) -> None:
-        robot = self.robots.get(robot_name)
-        path = joint_value_path(robot_name, joint)
-        unit = robot.unit(joint) if robot is not None else "rad"
-        if self._styled.get(path) != unit:  # again once the URDF tells a prismatic joint
-            self.rec.log(path, rr.SeriesLines(names=[f"{joint} ({unit})"], interpolation_mode="StepAfter"),
-                         static=True)
-            self._styled[path] = unit
-        self.rec.send_columns(path, indexes, rr.Scalars.columns(scalars=np.array(batch.values)))
-        if robot is not None:
-            robot.send_joint(self.rec, joint, indexes, batch.values)
 
     def _send_poses(self, name: str, batch: SampleBatch, indexes: list[rr.TimeColumn]) -> None:
         translations = np.array([p.p for p in batch.values])
