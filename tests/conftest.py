@@ -147,10 +147,35 @@ def iot_lab(iot_lab_shared) -> Iterator[Lab]:
         yield lab
 
 
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Where the collision kernels are not compiled yet (a fresh machine, a fresh clone), the session compiles
+    them once, from its start, at the tests' own priority: the labs it starts then find that compile under way
+    and run uncompiled until it is done, as a first start does (`cores.compiled`), and the modules that run
+    the kernels in the test process wait for it (`compiled_code`) instead of compiling them again beside it."""
+    if hasattr(session.config, "workerinput"):  # an xdist worker: its controller started it
+        return
+    from tdgen.robot import cores
+
+    if not cores.compiled():
+        from tdgen.robot import fast_collision
+
+        cores.compile_in_background(fast_collision, nice=0)
+
+
+@pytest.fixture(scope="session")
+def compiled_code() -> None:
+    """The collision kernels compiled and loaded in this process: the session's compile awaited if it is under
+    way (`pytest_sessionstart`), else compiled or loaded here."""
+    from tdgen.robot.fast_collision import compile_all
+
+    compile_all(wait=True)
+
+
 def _cost(item: pytest.Item) -> int:
-    """0: minutes on its own (`slow`); 1: a browser or node-wot; 2: a lab; 3: the unit layer."""
+    """0: minutes on its own (`slow`); 1: a browser or node-wot; 2: a lab; 3: the kernels in the test process
+    (`compiled_code`); 4: the unit layer."""
     marks = {mark.name for mark in item.iter_markers()}
-    return 0 if "slow" in marks else 1 if marks & {"browser", "interop"} else 2 if "lab" in marks else 3
+    return 0 if "slow" in marks else 1 if marks & {"browser", "interop"} else 2 if "lab" in marks else 4
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -158,10 +183,14 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """The costliest modules first, each module whole and in its own order: xdist hands out units of work in
     collection order (`--no-loadscope-reorder`), so the long ones start at once and the unit layer fills the
     gaps at the end, instead of a module of minutes starting last beside an idle worker (xdist's own order,
-    by test count, put test_wheel's two tests of minutes last)."""
+    by test count, put test_wheel's two tests of minutes last). A module that runs the kernels in the test
+    process goes after the labs, by when the session's compile is done (`pytest_sessionstart`)."""
     cost: dict[Path, int] = {}
     for item in items:
-        cost[item.path] = min(cost.get(item.path, 3), _cost(item))
+        cost[item.path] = min(cost.get(item.path, 4), _cost(item))
+    for item in items:
+        if "compiled_code" in getattr(item, "fixturenames", ()):
+            cost[item.path] = max(cost[item.path], 3)
     items.sort(key=lambda item: cost[item.path])
 
 

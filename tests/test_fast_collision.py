@@ -23,6 +23,8 @@ from tdgen.sampling import random_configurations, sample_workspace
 
 SAMPLES = 1500
 
+pytestmark = pytest.mark.usefixtures("compiled_code")  # the session's one compile, not one of its own beside it
+
 
 def _tilted_boxes():
     """table-and-wall with boxes turned about two axes on the table: their corners poke into links at every

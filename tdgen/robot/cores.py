@@ -129,10 +129,10 @@ def compiles_everything(module: ModuleType) -> None:
         _compiler.append(module)
 
 
-def compile_in_background(module: ModuleType | None = None) -> None:
+def compile_in_background(module: ModuleType | None = None, nice: int = BACKGROUND_NICE) -> None:
     """Compile everything (`module`'s main, by default the registered one: `fast_collision.compile_all`;
-    nothing if no module of this process registered) in a process of its own, at low
-    priority, at most once per process; it goes on if this process ends (a `twinmesh tdgen` that was
+    nothing if no module of this process registered) in a process of its own, at low priority (`nice`
+    added to this process's niceness), at most once per process; it goes on if this process ends (a `twinmesh tdgen` that was
     done first). Nothing starts if another process is at it: the lock is taken here and handed to the
     compiling process, so two processes of a lab starting at once cannot both start one."""
     import fcntl
@@ -149,7 +149,7 @@ def compile_in_background(module: ModuleType | None = None) -> None:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             return
-        main = (f"import os, runpy; os.nice({BACKGROUND_NICE}); "
+        main = (f"import os, runpy; os.nice({nice}); "
                 f"runpy.run_module({module.__name__!r}, run_name='__main__', alter_sys=True)")
         # -P: the working directory does not go first on sys.path, so the compile is of the modules this process
         # runs (a lab started inside a checkout of twinmesh compiled the checkout's, not the installed ones)
