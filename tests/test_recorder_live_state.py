@@ -89,3 +89,31 @@ def test_static_data_is_left_to_the_server_which_keeps_it_anyway(stream):
     busy(state, 30)
     assert state.log_current_state() == 0
     close(state)
+
+
+def test_each_frame_of_a_robots_joints_entity_is_logged_again_with_its_own_latest_transform(stream):
+    """A robot's joints are one entity whose rows each name a frame: each frame's state is its own last row."""
+    state, path = stream
+    frames = ["arm/link1", "arm/link2", "arm/link1"]
+    state.send_columns("arm/joints", [rr.TimeColumn("time", timestamp=[1000.0, 1000.0, 1000.5])],
+                       rr.Transform3D.columns(translation=np.array([[1.0, 0, 0], [2, 0, 0], [3, 0, 0]]),
+                                              parent_frame=["arm/base", "arm/link1", "arm/base"], child_frame=frames))
+    busy(state, 30)
+    assert state.log_current_state() == 2  # the two frames
+    close(state)
+    again = [(frame, translation) for t, frame, translation in frame_rows(path, "/arm/joints") if t > 1000.5]
+    assert sorted(again) == [("arm/link1", [3.0, 0.0, 0.0]), ("arm/link2", [2.0, 0.0, 0.0])]
+
+
+def frame_rows(path: Path, entity: str) -> list[tuple[float, str, list[float]]]:
+    """(time, child frame, translation) of each transform row of an entity: rows at one time kept apart."""
+    from rerun.chunk import RrdReader
+
+    out = []
+    for chunk in RrdReader(path).stream().filter(content=entity, is_static=False):
+        batch = chunk.to_record_batch()
+        if chunk.entity_path == entity and "Transform3D:child_frame" in batch.schema.names:
+            out += [(t.timestamp(), f[0], v[0]) for t, f, v in zip(batch.column("time").to_pylist(),
+                                                                    batch.column("Transform3D:child_frame").to_pylist(),
+                                                                    batch.column("Transform3D:translation").to_pylist())]
+    return out
