@@ -8,7 +8,9 @@ scene.json's URL, rebuilds the same scene (`tdgen.robot.surroundings.load_scene`
 
 A file is read from disk for each request and handed to the mesh as it is (never kept in memory between
 requests): how large it may be is up to Zenoh's largest message (1 GiB unless configured otherwise) and
-the consumer's query timeout.
+the consumer's query timeout. A .gltf is the exception: it may name files beside it (`part.bin`, textures)
+that its relative URIs would not find beside scene.json, so it is served as the GLB of it (`.glb`, packed
+for each request from the .gltf and its files, `tdgen.robot.gltf_files`): one file, whole, whoever fetches it.
 """
 from __future__ import annotations
 
@@ -23,6 +25,8 @@ from mesh.messages import relations
 from mesh.messages.scene_description import FILE_BODIES
 from mesh.wot.problem import NotFound
 from mesh.wot.thing_description import Link
+from tdgen.robot.errors import SceneError
+from tdgen.robot.gltf_files import is_gltf, pack_glb
 
 PREFIX = "scene-"  # served names never meet the Thing's other files (workspace.stl, scene.json, a URDF)
 # IANA's registrations where there is one (as Debian's /etc/mime.types lists them); PLY and PCD have none
@@ -39,7 +43,7 @@ def media_type(path: str | Path) -> str:
 
 @dataclass(frozen=True)
 class SceneAsset:
-    """A file of the scene as served: `files/<name>`, read from `path`."""
+    """A file of the scene as served: `files/<name>`, read from `path` (a .gltf: packed as GLB)."""
 
     name: str
     path: Path
@@ -47,9 +51,11 @@ class SceneAsset:
 
     def read(self) -> bytes:
         try:
-            return self.path.read_bytes()
+            return pack_glb(self.path) if is_gltf(self.path) else self.path.read_bytes()
         except OSError as e:  # moved or deleted since the scene was loaded: said, not a 5xx
             raise NotFound(f"{self.name}: the scene's file {self.path} cannot be read ({e.strerror})") from None
+        except SceneError as e:  # a .gltf or a file it names gone or broken since: said, naming them
+            raise NotFound(f"{self.name}: {e}") from None
 
     def link(self) -> Link:
         return Link(href=f"files/{self.name}", rel=relations.SCENE_ASSET, type=self.media_type)
@@ -71,7 +77,8 @@ class SceneAssets:
             for body in bodies:
                 file = body.get("file")
                 if body.get("type") in FILE_BODIES and isinstance(file, str) and file not in self._by_path:
-                    asset = SceneAsset(self._name_for(Path(file)), Path(file), media_type(file))
+                    served = Path(file).with_suffix(".glb") if is_gltf(file) else Path(file)  # packed, read()
+                    asset = SceneAsset(self._name_for(served), Path(file), media_type(served))
                     self._by_path[file] = asset
                     self._taken.add(asset.name)
                     new.append(asset)

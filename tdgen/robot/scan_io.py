@@ -8,7 +8,8 @@ PCD goes through pypcd4 (ascii, binary and LZF binary_compressed, any extra fiel
 or `rgba`): small, pure Python with a C LZF codec, where open3d would bring a few hundred MB for one
 reader. PLY, STL, OBJ and glTF go through trimesh; LAS/LAZ through laspy and E57 through pye57 when
 installed (neither is needed for the other formats). Clouds are read by `mesh.cloud_files`, as the
-recorder reads them.
+recorder reads them. A .gltf is the file and the files it names (`gltf_files`): all must be there, and its
+content is all of theirs.
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ import numpy as np
 
 from mesh.cloud_files import SUFFIXES as CLOUD_FILES
 from mesh.cloud_files import CloudFileError, read_cloud_file
+from tdgen.robot import gltf_files
 from tdgen.robot.errors import SceneError
 
 CLOUD_SUFFIXES = CLOUD_FILES
@@ -65,6 +67,8 @@ def read_mesh(path: Path, scale: float = 1.0):
     if suffix not in MESH_SUFFIXES:
         raise SceneError(f"{path}: unknown mesh format {suffix or '(no extension)'!r} (known: {', '.join(MESH_SUFFIXES)})")
     _readable(path)
+    if gltf_files.is_gltf(path):  # said here, naming both files, not as the loader's FileNotFoundError
+        gltf_files.check_whole(path)
     try:
         mesh = trimesh.load(str(path), force="mesh", process=True)
     except Exception as exc:
@@ -83,12 +87,35 @@ def read_mesh(path: Path, scale: float = 1.0):
 
 SETTLED = 2.0  # s: a file unchanged this long is known by its size, times and inode until they change
 _DIGESTS: dict[str, tuple[tuple[int, int, int, int], str]] = {}
+_NAMED: dict[str, tuple[str, list[tuple[str, Path]]]] = {}  # a .gltf's path -> its digest, the files it names
 
 
 def content_digest(path: Path) -> str:
     """The sha256 of the file's content (hex): what a scan or mesh is known by in the caches, never its path or
-    time. Hashed again whenever its size, times or inode differ from the last hash; a file changed within
-    `SETTLED` of its hash is hashed every time (a write within the clock's tick leaves its times as they were)."""
+    time. A .gltf's covers the files it names (a part.bin written again is a new mesh). Hashed again whenever
+    its size, times or inode differ from the last hash; a file changed within `SETTLED` of its hash is hashed
+    every time (a write within the clock's tick leaves its times as they were)."""
+    digest = _file_digest(path)
+    if not gltf_files.is_gltf(path):
+        return digest
+    held = _NAMED.get(str(path))
+    if held is not None and held[0] == digest:
+        named = held[1]
+    else:
+        try:
+            named = gltf_files.named_files(path)
+        except SceneError:  # said when the mesh is read; known by its own bytes until then
+            named = []
+        _NAMED[str(path)] = (digest, named)  # parsed once per content: a .gltf of data: URIs may be large
+    if not named:
+        return digest
+    h = hashlib.sha256(digest.encode())
+    for uri, file in named:
+        h.update(b"\0" + uri.encode() + b"\0" + (_file_digest(file).encode() if file.is_file() else b"<missing>"))
+    return h.hexdigest()
+
+
+def _file_digest(path: Path) -> str:
     stat = path.stat()
     mark = (stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns, stat.st_ino)
     held = _DIGESTS.get(str(path))
