@@ -218,3 +218,40 @@ def test_a_robot_process_whose_scan_the_lab_cannot_see_gets_the_scans_flags(ligh
         bare.close()
     assert (flags == with_scan).mean() >= 0.99  # the file's joints are rounded to 0.001 deg: a grazing contact may flip
     assert (flags & ~without).sum() >= 5, "no flag comes from the scan"
+
+
+def test_a_robot_elsewhere_whose_gltf_names_separate_files_gets_the_td_of_a_local_one(mesh, tmp_path):
+    """The robot serves its .gltf (geometry in .bin files, a texture) as the GLB of it; the service fetches that
+    and makes the TD, points.csv and hull it makes from the .gltf read where it lies."""
+    from test_scene_gltf import write_gltf
+
+    from devices.things.scene_files import SceneAssets
+
+    robot_host = tmp_path / "robot-host"
+    robot_host.mkdir()
+    gltf = write_gltf(robot_host, size=(0.5, 0.4, 0.5))
+    body = {"type": "mesh", "name": "chest", "position": [0.6, -0.3, 0.85], "rpy": [0, 0, 25]}
+    (asset,) = SceneAssets().add([{**body, "file": str(gltf)}])
+    elsewhere = "/robot-host/cad/crate.gltf"
+    with ExitStack() as stack:
+        service = stack.enter_context(TdgenService(stack.enter_context(open_session(mesh)), mesh, tmp_path / "c", 1))
+        served = tmp_path / asset.name
+        served.write_bytes(asset.read())
+        _robot_host(stack, mesh, "chestbot", {asset.name: served})
+        client = MeshClient(stack.enter_context(open_session(mesh)), mesh)
+
+        def artefacts(twin: TwinDescription) -> dict[str, bytes]:
+            status = service.generate(twin)
+            assert status.status == "ready", status.error
+            return {suffix: bytes(client.file("tdgen", f"chestbot.{suffix}").payload)
+                    for suffix in ("td.json", "points.csv", "workspace.stl", "scene.json")}
+
+        remote = artefacts(_twin("chestbot", [TABLE, {**body, "file": elsewhere}], {elsewhere: asset.name}))
+        local = artefacts(_twin("chestbot", [TABLE, {**body, "file": str(gltf)}]))
+        bare = artefacts(_twin("chestbot", [TABLE]))
+    copies = list((tmp_path / "c" / "scene-files").iterdir())
+    assert [copy.suffix for copy in copies] == [".glb"]
+    assert remote["points.csv"] == local["points.csv"] != bare["points.csv"]
+    assert remote["workspace.stl"] == local["workspace.stl"]
+    assert remote["td.json"] == local["td.json"]
+    assert msgspec.json.decode(remote["scene.json"])["bodies"][1]["file"] == elsewhere  # the robot's name for it
