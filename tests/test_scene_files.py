@@ -2,14 +2,15 @@
 it links over HTTP rebuilds the same scene; the recorder draws them from the same files.
 
 The robot: `twinmesh robot --scene FILE` on the shared lights lab, its scene holding a known table, a closed mesh (a ring,
-STL, in a subfolder) and a scan (an organized PCD with NaN points, in another subfolder), at `--speed max` with
+STL, in a subfolder), a scan (an organized PCD with NaN points, in another subfolder) and a chest (a .gltf whose
+geometry is in .bin files beside it, with a texture in a folder below: served as one GLB), at `--speed max` with
 the exact collision model. A client does what any HTTP consumer would: GET the TD through the adapter, GET
 scene.json and every `scene-asset` link into an empty folder, load it with tdgen's scene loader, and asks the
 rebuilt scene about configurations of the robot's own points.csv. The world: a `world` Thing served from
 this test process on the same mesh, its scene (the same bodies, the UR10 standing where the robot does) naming
-the same two files, downloaded and rebuilt the same way. Then `twinmesh record` records the robot: its
-scan drawn as points and its ring as a mesh, where the scene puts them, in the robot's own world and in the
-world's.
+the same files, downloaded and rebuilt the same way. Then `twinmesh record` records the robot: its
+scan drawn as points and its ring and chest as meshes, where the scene puts them, in the robot's own world and in
+the world's.
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ import pytest
 import trimesh
 from labs import stop_process
 from scans import render_scan, write_pcd
+from test_scene_gltf import write_gltf
 from waiting import eventually
 
 from mesh.messages.relations import POINTS, SCENE, SCENE_ASSET, TWIN, WORKSPACE
@@ -38,6 +40,8 @@ pytestmark = pytest.mark.lab
 NAME = "scanbot"
 RING = {"type": "mesh", "name": "ring", "file": "cad/ring.stl", "position": [0.55, 0.35, 0.95], "rpy": [90, 0, 0]}
 TABLE = {"type": "box", "name": "table", "size": [0.6, 0.6, 0.6], "position": [0.0, 0.0, 0.3]}
+CHEST = {"type": "mesh", "name": "chest", "file": "cad/chest/chest.gltf", "position": [-0.55, -0.4, 0.8],
+         "rpy": [0, 0, 20]}
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -49,13 +53,16 @@ def scan_cache(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def scene_file(tmp_path_factory) -> Path:
-    """scene.json with a table, the ring (cad/ring.stl) and the room's scan (scans/room.pcd)."""
+    """scene.json with a table, the ring (cad/ring.stl), the room's scan (scans/room.pcd) and the chest
+    (cad/chest/chest.gltf, chest_0.bin and chest_1.bin beside it, a texture in cad/chest/textures/)."""
     from tdgen.robot.surroundings import BoxBody
 
     folder = tmp_path_factory.mktemp("scene")
     (folder / "cad").mkdir()
     (folder / "scans").mkdir()
     trimesh.creation.torus(0.25, 0.05).export(folder / "cad" / "ring.stl")
+    (folder / "cad" / "chest").mkdir()
+    write_gltf(folder / "cad" / "chest", name="chest", size=(0.4, 0.3, 0.4))
     room = Surroundings(name="room", bodies=[
         BoxBody(name="wall", size=(2.0, 0.1, 1.6), position=(0.0, 0.6, 0.8)),
         BoxBody(name="crate", size=(0.3, 0.3, 0.4), position=(0.55, -0.2, 0.8))])
@@ -65,7 +72,7 @@ def scene_file(tmp_path_factory) -> Path:
               "rpy": list(scan.rpy), "voxel": 0.03}
     path = folder / "scene.json"
     path.write_text(json.dumps({"name": "scanned-bench", "robot": {"position": [0, 0, 0.6]},
-                                "bodies": [TABLE, RING, points]}))
+                                "bodies": [TABLE, RING, points, CHEST]}))
     return path
 
 
@@ -112,17 +119,21 @@ def test_the_td_links_each_file_the_scene_names_under_the_href_the_scene_gives_i
     served = httpx.get(scene_url, timeout=30).json()
     files = {b["name"]: b["file"] for b in served["bodies"] if "file" in b}
     assets = {link["href"]: link["type"] for link in _links(robot_td, SCENE_ASSET)}
-    assert set(files) == {"ring", "room"}
+    assert set(files) == {"ring", "room", "chest"}
     assert {urljoin(scene_url, f) for f in files.values()} == set(assets)  # relative to scene.json, as linked
     assert assets[urljoin(scene_url, files["ring"])] == "model/stl"
     assert assets[urljoin(scene_url, files["room"])] == "application/octet-stream"  # PCD: no registered type
+    assert assets[urljoin(scene_url, files["chest"])] == "model/gltf-binary"  # the .gltf, whole, as a GLB
 
 
 def test_the_files_come_as_they_are_with_their_media_type(robot_td, scene_file):
     originals = {"ring": scene_file.parent / RING["file"], "room": scene_file.parent / "scans" / "room.pcd"}
     served = httpx.get(_links(robot_td, SCENE)[0]["href"], timeout=30).json()
     for body in served["bodies"]:
-        if "file" in body:
+        if body.get("name") == "chest":
+            r = httpx.get(urljoin(_links(robot_td, SCENE)[0]["href"], body["file"]), timeout=30)
+            assert r.content[:4] == b"glTF" and r.headers["content-type"] == "model/gltf-binary"
+        elif "file" in body:
             r = httpx.get(urljoin(_links(robot_td, SCENE)[0]["href"], body["file"]), timeout=30)
             assert r.status_code == 200
             assert hashlib.sha256(r.content).digest() == hashlib.sha256(originals[body["name"]].read_bytes()).digest()
@@ -163,7 +174,7 @@ def test_the_downloaded_scene_gives_the_robots_own_verdicts(robot_td, downloaded
         original.close()
         rebuilt.close()
     assert (here == there).all()
-    assert {"ring", "room"} <= hits  # the mesh and the scan decide some of them
+    assert {"ring", "room", "chest"} <= hits  # the meshes and the scan decide some of them
     assert (there == flags).mean() >= 0.99  # the file's joints are rounded to 0.001 deg: a grazing contact may flip
 
 
@@ -190,12 +201,13 @@ class ScannedRoom:
             return Pose(tuple(body["position"]), tuple(float(v) for v in q))
 
         bodies = json.loads(self.scene_file.read_text())["bodies"]
-        table, ring, room = bodies
+        table, ring, room, chest = bodies
         folder = self.scene_file.parent
         return SceneDescription(self.name, robots=[RobotModel("ur10", "ur10.urdf", Pose((0.0, 0.0, 0.6)))], bodies=[
             Body("table", "box", tuple(table["size"]), pose(table)),
             Body("ring", "mesh", (0.6, 0.6, 0.1), pose(ring), file=str(folder / ring["file"])),
-            Body("room", "points", (2.0, 2.0, 2.0), pose(room), file=str(folder / room["file"]), voxel=room["voxel"])])
+            Body("room", "points", (2.0, 2.0, 2.0), pose(room), file=str(folder / room["file"]), voxel=room["voxel"]),
+            Body("chest", "mesh", (0.4, 0.3, 0.4), pose(chest), file=str(folder / chest["file"]))])
 
     def reset(self, cubes: int | None = None) -> None:
         pass
@@ -223,8 +235,9 @@ def test_the_worlds_scene_json_names_its_files_as_its_td_links_them(world_td):
     scene_url = _links(world_td, SCENE)[0]["href"]
     served = httpx.get(scene_url, timeout=30).json()
     files = {b["name"]: b["file"] for b in served["bodies"] if "file" in b}
-    assert set(files) == {"ring", "room"}
-    assert {urljoin(scene_url, f): t for f, t in zip(files.values(), ("model/stl", "application/octet-stream"))} \
+    assert set(files) == {"ring", "room", "chest"}
+    types = {"ring": "model/stl", "room": "application/octet-stream", "chest": "model/gltf-binary"}
+    assert {urljoin(scene_url, f): types[name] for name, f in files.items()} \
         == {link["href"]: link["type"] for link in _links(world_td, SCENE_ASSET)}
 
 
@@ -267,14 +280,16 @@ def test_the_recording_draws_the_scan_as_its_points_where_the_sensor_saw_them(re
     assert drawn.shape == truth.shape and np.allclose(drawn, truth, atol=1e-4)  # fewer than 100,000: every point
 
 
-@pytest.mark.parametrize("entity", [f"/robots/{NAME}/scene/ring", "/world/bodies/ring"], ids=["robot", "world"])
-def test_the_recording_draws_the_ring_as_its_triangles_where_the_scene_puts_it(recording, scene_file, entity):
+@pytest.mark.parametrize("where", [f"/robots/{NAME}/scene", "/world/bodies"], ids=["robot", "world"])
+@pytest.mark.parametrize("body", [RING, CHEST], ids=["ring", "chest"])
+def test_the_recording_draws_each_mesh_as_its_triangles_where_the_scene_puts_it(recording, scene_file, body, where):
     from scipy.spatial.transform import Rotation
 
-    ring = trimesh.load(scene_file.parent / RING["file"], force="mesh")
+    entity = f"{where}/{body['name']}"
+    mesh = trimesh.load(scene_file.parent / body["file"], force="mesh")
     vertices = np.array(latest_static(recording, entity, "Mesh3D:vertex_positions"))
-    assert len(latest_static(recording, entity, "Mesh3D:triangle_indices")) == len(ring.faces)
+    assert len(latest_static(recording, entity, "Mesh3D:triangle_indices")) == len(mesh.faces)
     drawn = placed(recording, entity, vertices)
-    truth = Rotation.from_euler("xyz", RING["rpy"], degrees=True).apply(ring.vertices) + RING["position"]
+    truth = Rotation.from_euler("xyz", body["rpy"], degrees=True).apply(mesh.vertices) + body["position"]
     assert np.allclose(drawn.min(axis=0), truth.min(axis=0), atol=1e-5)
     assert np.allclose(drawn.max(axis=0), truth.max(axis=0), atol=1e-5)
