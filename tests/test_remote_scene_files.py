@@ -173,7 +173,11 @@ def _private_mounts() -> list[str] | str:
 
 
 @pytest.mark.lab
-def test_a_robot_process_whose_scan_the_lab_cannot_see_gets_the_scans_flags(lights, scan_file, tmp_path):
+def test_a_robot_process_whose_scan_and_gltf_the_lab_cannot_see_gets_their_flags(lights, scan_file, tmp_path):
+    """The scan comes as the robot's file, the chest's .gltf (its geometry in .bin files beside it) as the GLB the
+    robot packs of it."""
+    from test_scene_gltf import write_gltf
+
     prefix = _private_mounts()
     if isinstance(prefix, str):
         pytest.skip(prefix)
@@ -182,9 +186,14 @@ def test_a_robot_process_whose_scan_the_lab_cannot_see_gets_the_scans_flags(ligh
     robot_host.mkdir()
     elsewhere.mkdir()
     shutil.copy(path, robot_host / "room.pcd")
-    scene = {"name": "scanned", "robot": {"position": [0, 0, 0.6]}, "bodies": [TABLE, {**body, "file": "room.pcd"}]}
+    (robot_host / "cad").mkdir()
+    write_gltf(robot_host / "cad", name="chest", size=(0.4, 0.3, 0.4))
+    chest = {"type": "mesh", "name": "chest", "file": "cad/chest.gltf", "position": [-0.55, -0.4, 0.8], "rpy": [0, 0, 20]}
+    scene = {"name": "scanned", "robot": {"position": [0, 0, 0.6]},
+             "bodies": [TABLE, {**body, "file": "room.pcd"}, chest]}
     (robot_host / "scene.json").write_text(json.dumps(scene))
     (tmp_path / "bare.json").write_text(json.dumps({**scene, "bodies": [TABLE]}))
+    (robot_host / "unchested.json").write_text(json.dumps({**scene, "bodies": scene["bodies"][:2]}))
     log = tmp_path / "farbot.log"
     robot = subprocess.Popen(
         [*prefix, "sh", "-c", 'mount --bind "$0" "$1" && shift && exec "$@"', str(robot_host), str(elsewhere),
@@ -209,15 +218,17 @@ def test_a_robot_process_whose_scan_the_lab_cannot_see_gets_the_scans_flags(ligh
         assert stop_process(robot)
     qs, flags = np.radians(rows[:, 4:]), rows[:, 3] != 0
     ur10 = Robot.load("ur10.urdf")
-    scanned, bare = CollisionWorld(ur10, load_scene(robot_host / "scene.json")), CollisionWorld(
-        ur10, load_scene(tmp_path / "bare.json"))
+    worlds = [CollisionWorld(ur10, load_scene(robot_host / "scene.json")),
+              CollisionWorld(ur10, load_scene(tmp_path / "bare.json")),
+              CollisionWorld(ur10, load_scene(robot_host / "unchested.json"))]
     try:
-        with_scan, without = scanned.colliding(qs), bare.colliding(qs)
+        whole, without, unchested = (world.colliding(qs) for world in worlds)
     finally:
-        scanned.close()
-        bare.close()
-    assert (flags == with_scan).mean() >= 0.99  # the file's joints are rounded to 0.001 deg: a grazing contact may flip
+        for world in worlds:
+            world.close()
+    assert (flags == whole).mean() >= 0.99  # the file's joints are rounded to 0.001 deg: a grazing contact may flip
     assert (flags & ~without).sum() >= 5, "no flag comes from the scan"
+    assert (flags & ~unchested).sum() >= 3, "no flag comes from the chest"
 
 
 def test_a_robot_elsewhere_whose_gltf_names_separate_files_gets_the_td_of_a_local_one(mesh, tmp_path):
