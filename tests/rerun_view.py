@@ -64,9 +64,15 @@ def joint_units(path: Path, entity: str) -> dict[str, str]:
 def frame_transforms(path: Path, entity: str, frame: str) -> list[dict]:
     """The transforms an entity logs over time for one child frame, in `seq` order: translation, quaternion
     and parent frame of each row (a robot's joints entity names a frame in each row)."""
+    return transforms_by_frame(path, entity).get(frame, [])
+
+
+def transforms_by_frame(path: Path, entity: str) -> dict[str, list[dict]]:
+    """Child frame -> its transforms over time, as `frame_transforms` reads them. Read chunk by chunk: a
+    dataframe query keeps one row per entity and time, where such an entity has one per frame."""
     from rerun.chunk import RrdReader
 
-    rows = []
+    rows: dict[str, list] = defaultdict(list)
     for chunk in RrdReader(path).stream().filter(content=entity, is_static=False):
         batch = chunk.to_record_batch()
         if chunk.entity_path != entity or "Transform3D:child_frame" not in batch.schema.names:
@@ -74,9 +80,9 @@ def frame_transforms(path: Path, entity: str, frame: str) -> list[dict]:
         columns = {c: batch.column(f"Transform3D:{c}").to_pylist()
                    for c in ("child_frame", "parent_frame", "translation", "quaternion")}
         for i, seq in enumerate(batch.column("seq").to_pylist()):
-            if columns["child_frame"][i] == [frame]:
-                rows.append((seq, {c: columns[c][i][0] for c in ("translation", "quaternion", "parent_frame")}))
-    return [r for _, r in sorted(rows, key=lambda r: r[0])]
+            row = {c: columns[c][i][0] for c in ("translation", "quaternion", "parent_frame")}
+            rows[columns["child_frame"][i][0]].append((seq, row))
+    return {frame: [r for _, r in sorted(found, key=lambda r: r[0])] for frame, found in rows.items()}
 
 
 def shared_frames(path: Path) -> dict[tuple[str, bool], set[str]]:

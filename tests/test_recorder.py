@@ -123,12 +123,20 @@ def _logged(entries: list[mapping.Entry]) -> dict[str, list[str]]:
     return out
 
 
-def test_object_of_numbers_becomes_one_series_per_field():
+def test_object_of_numbers_becomes_one_entity_with_a_series_per_field_named_with_its_unit():
     schema = DataSchema(type="object", properties={"x": DataSchema(type="number", unit="mm"),
                                                    "busy": DataSchema(type="boolean")})
     entries = mapping.property_entries("uarm", "location", {"x": 192.0, "busy": True}, schema)
-    assert _logged(entries) == {"things/uarm/properties/location/x": ["Scalars"],
-                                "things/uarm/properties/location/busy": ["Scalars"]}
+    assert _logged(entries) == {"things/uarm/properties/location": ["Scalars"]}
+    style, values = entries
+    assert style.static and style.archetype.names.as_arrow_array().to_pylist() == ["x (mm)", "busy"]
+    assert values.archetype.scalars.as_arrow_array().to_pylist() == [192.0, 1.0]
+
+
+def test_an_object_with_other_fields_becomes_one_entity_per_field():
+    entries = mapping.property_entries("t", "status", {"speed": 2.0, "mode": "auto"})
+    assert _logged(entries) == {"things/t/properties/status/speed": ["Scalars"],
+                                "things/t/properties/status/mode": ["TextLog"]}
 
 
 def test_colour_scale_comes_from_the_schema():

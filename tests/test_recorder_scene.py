@@ -13,7 +13,7 @@ from pathlib import Path
 import msgspec
 import pytest
 from labs import REPO, start_lab, stop_process
-from rerun_view import frame_transforms, joint_units, joint_values
+from rerun_view import frame_transforms, joint_units, joint_values, transforms_by_frame
 
 from mesh.fabric.settings import MeshSettings
 from mesh.messages.scene_description import Body, Pose, Poses, RobotModel, SceneDescription
@@ -136,7 +136,11 @@ def test_joint_transforms_are_computed_from_the_urdf(recording):
 
 
 def test_cube_translations_follow_its_path(recording):
-    translations = [v[0] for v in read_column(recording, "/world/bodies/cube", "Transform3D:translation")]
+    """A moving body is drawn in its own frame, placed over time by the rows of `world/poses` naming it."""
+    assert static_column(recording, "/world/bodies/cube", "CoordinateFrame:frame") == [["world/bodies/cube"]]
+    rows = frame_transforms(recording, "/world/poses", "world/bodies/cube")
+    assert {r["parent_frame"] for r in rows} == {"tf#/world"}
+    translations = [r["translation"] for r in rows]
     # its pose in scene.json (drawn at the join; the value read at the join is the same), then each sample
     expected = [list(p) for p in [CUBE_START.p] + CUBE_PATH]
     assert [[round(v, 6) for v in p] for p in translations] == expected
@@ -255,8 +259,8 @@ def test_cube_workflow_recording_shows_both_arms_and_the_cube_round_trip(tmp_pat
         assert any(max(v) - min(v) > 0.1 for v in series if v), f"{robot}'s joints never moved"
         assert static_column(path, f"/world/robots/{robot}/tf_static", "Transform3D:child_frame")
 
-    tracks = {e: [v[0] for v in read_column(path, e, "Transform3D:translation")]
-              for e in entities if e.startswith("/world/bodies/")}
+    tracks = {f: [r["translation"] for r in rows] for f, rows in transforms_by_frame(path, "/world/poses").items()
+              if f.startswith("world/bodies/")}
     cube, track = max(tracks.items(), key=lambda kv: _travel(kv[1]))
 
     def scene_point(x_mm: float, y_mm: float, z_mm: float) -> tuple[float, float, float]:  # real uArm frame

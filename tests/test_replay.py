@@ -12,6 +12,7 @@ import time
 import urllib.request
 from pathlib import Path
 
+import numpy as np
 import pytest
 from labs import REPO, free_port
 from rerun_view import colour_share, viewer_page
@@ -149,3 +150,69 @@ def test_a_replay_draws_the_recording_in_the_browser_and_asks_no_other_host(repl
                    what="the magenta lamp of the recording in the view")
         assert view.rerun_problems() == []
         assert view.foreign_hosts() == set()
+
+
+# --- a robot's joints: one entity for all its frames, drawn as Rerun draws one entity per joint -------
+UR10_URDF = (REPO / "tdgen" / "robot" / "models" / "ur10.urdf").read_text()
+UR10_POSE = {"shoulder_pan_joint": 1.2, "shoulder_lift_joint": -1.0, "elbow_joint": 1.5, "wrist_1_joint": 0.8,
+             "wrist_2_joint": 0.0, "wrist_3_joint": 0.0}  # rad: far from the zero pose
+
+
+def ur10_recording(path: Path, pose: dict[str, float], joint_by_joint: bool = False) -> Path:
+    """A UR10 in the pose, as the recorder draws it (its moved joints' transforms as rows of one entity),
+    or, `joint_by_joint`, each joint's transform logged on an entity of its own as Rerun's URDF docs do."""
+    import rerun as rr
+
+    from mesh.messages.scene_description import RobotModel
+
+    rec = rr.RecordingStream("twinmesh")
+    rec.save(str(path))
+    scene = SceneDescription("ur10", robots=[RobotModel("ur10", "ur10.urdf", Pose((0.0, 0.0, 0.0)))])
+    drawer = SceneDrawer(rec)
+    assert drawer.draw_scene(SceneFiles(scene, {"ur10.urdf": UR10_URDF}), time.time(), 0) == []
+    if joint_by_joint:
+        rec.set_time("sim_time", duration=1.0)
+        robot = drawer.robots["ur10"]
+        for joint, value in pose.items():
+            rec.log(f"reference/{joint}", robot.joints[joint].compute_transform(value, clamp=False))
+    else:
+        drawer.add_poses(Poses(time=1.0, joints={"ur10": pose}), time.time(), 1)
+        drawer.flush()
+    rec.send_blueprint(lab_blueprint(scene, ["ur10"], {}))
+    rec.disconnect()
+    return path
+
+
+def settled_view(path: Path, tmp: Path) -> np.ndarray:
+    """The 3D view of a replayed recording once it stops changing, with no Rerun error on the page."""
+    replaying = Replaying(path, tmp)
+    try:
+        with viewer_page(replaying.url) as view:
+            last: list[np.ndarray] = []
+
+            def settled() -> np.ndarray | None:
+                pixels = view.view_pixels().astype(int)
+                same = len(last) >= 2 and all(np.abs(pixels - p).max() <= 2 for p in last[-2:])
+                last.append(pixels)
+                return pixels if same and pixels.std() > 10 else None
+
+            pixels = eventually(settled, timeout=600, interval=3.0, what=f"the view of {path.name} settled")
+            assert view.rerun_problems() == []
+    finally:
+        replaying.stop()
+    return pixels
+
+
+def differing(a: np.ndarray, b: np.ndarray) -> float:
+    return float((np.abs(a - b).max(axis=2) > 30).mean())
+
+
+@pytest.mark.browser
+@pytest.mark.slow
+@pytest.mark.timeout(2400)
+def test_a_robot_whose_joints_share_one_entity_stands_as_one_drawn_joint_by_joint(tmp_path):
+    posed = settled_view(ur10_recording(tmp_path / "posed.rrd", UR10_POSE), tmp_path)
+    reference = settled_view(ur10_recording(tmp_path / "reference.rrd", UR10_POSE, joint_by_joint=True), tmp_path)
+    zero = settled_view(ur10_recording(tmp_path / "zero.rrd", dict.fromkeys(UR10_POSE, 0.0)), tmp_path)
+    assert differing(posed, zero) > 0.05, "the pose is not seen: the test would not tell a robot left at zero"
+    assert differing(posed, reference) < 0.005

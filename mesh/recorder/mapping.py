@@ -11,7 +11,10 @@ scale (`maximum`), the schemas of an object's fields, the unit in a series' name
 - a colour (an array of 3-4 numbers or an object with r, g, b, when the name or the schema's
   title/@type says colour) -> an `Image` swatch filled with that colour at the property's path, plus
   one `Scalars` per channel (`.../<p>/r`, `/g`, `/b`) in the Thing's own scale;
-- an object -> the same rules per field, one entity per field (`.../<p>/<field>`);
+- an object of numbers and booleans only (a position, a location) -> one `Scalars` entity at the
+  property's path with one series per field, named with its unit (one chunk per change, not one per
+  field: the live view's browser takes in chunks, not rows, at a cost each);
+- any other object -> the same rules per field, one entity per field (`.../<p>/<field>`);
 - an array of numbers -> one `Scalars` entity with one series per element;
 - a string -> a `TextLog` line at the property's path; anything else -> a `TextLog` line of JSON.
 
@@ -140,6 +143,9 @@ def value_entries(path: str, name: str, value: Any, schema: DataSchema | None) -
         return _scalar_entries(path, [float(value)], [_series_name(name, schema)])
     if kind == "object":
         fields = (schema.properties or {}) if schema is not None else {}
+        if value and all(_is_number(v) or isinstance(v, bool) for v in value.values()):
+            return _scalar_entries(path, [float(v) for v in value.values()],
+                                   [_series_name(str(f), fields.get(f)) for f in value])
         out: list[Entry] = []
         for field, v in value.items():
             out += value_entries(f"{path}/{rr.escape_entity_path_part(str(field))}", str(field), v, fields.get(field))

@@ -14,18 +14,20 @@ Entities (frames: `tf#/world` is the scene frame; robot `r`'s links are the fram
 - `world`: Z-up view coordinates;
 - `world/robots/<r>/...`: the URDF's visual geometry, `world/robots/<r>/tf_static` its joints at
   zero (both static, from rerun's URDF support, collision geometry left out);
-- `world/robots/<r>/base`: the robot's base pose in the scene (static, from `scene.json`), and
-  `world/robots/<r>/base_pose` the same over time when `poses.bodies` names the robot (a Dobot
-  travelling on its track);
+- `world/robots/<r>/base`: the robot's base pose in the scene (static, from `scene.json`); over time,
+  when `poses.bodies` names the robot (a Dobot travelling on its track), in `world/poses`;
 - `world/robots/<r>/joints`: the moving joints' transforms over time, computed from the URDF, one row
   per joint that moved naming its frame (`mesh.recorder.joint_rows`: two chunks per robot and flush);
 - `world/joints/<r>`: the joints' values as time series (rad or m), one series per joint;
 - `world/bodies/<b>`: each body as a box, cylinder or sphere with its colour (static) and its pose
-  (static, or over time for moving bodies such as cubes), a `points` body (a scan) as its points and a
+  (static; a moving body such as a cube is in its own frame `world/bodies/<b>` instead, placed over
+  time in `world/poses`), a `points` body (a scan) as its points and a
   `mesh` body (a CAD mesh) as its triangles, from the file the world serves (`mesh.recorder.scene_assets`),
   placed by the body's pose (a scan's: its sensor's); a body that shows a device's light (a
   lamp's shade, `Body.shows`) has its colour over time instead, from that device's `{on, color}`
   state in the poses, logged the moment the state changes;
+- `world/poses`: the poses over time of the moving bodies and of the robots whose base moves, one row
+  per pose naming its frame: one chunk per flush however many move (`mesh.recorder.joint_rows` says why);
 - `world/states/<device>/<key>`: each device's small state by the property rules of
   `mesh.recorder.mapping`, logged when it changes;
 - `robots/<r>/...`: robot Things (see `mesh.recorder.robots`): those of this world in its frame,
@@ -106,6 +108,14 @@ def joint_values_path(robot: str) -> str:
 
 def body_path(body: str) -> str:
     return entity_path(WORLD, "bodies", body)
+
+
+def body_frame(body: str) -> str:
+    """The frame of a moving body, placed over time in `POSES` (a frame belongs to one entity)."""
+    return f"{WORLD}/bodies/{body}"
+
+
+POSES = entity_path(WORLD, "poses")
 
 
 def state_path(device: str, key: str) -> str:
@@ -270,6 +280,7 @@ class SceneDrawer:
                     self.rec.set_time("sim_time", duration=0.0)
                 self.rec.log(entry.path, entry.archetype)
         if body.moving:  # a static pose would shadow the poses to come: log it as the first of them
+            self.rec.log(path, rr.CoordinateFrame(body_frame(body.name)), static=static)
             self._batch_pose(body.name, body.pose, wall, seq)
         else:
             placement = rr.Transform3D(translation=body.pose.p, quaternion=rr.Quaternion(xyzw=body.pose.q))
@@ -347,21 +358,36 @@ class SceneDrawer:
             send_values(self.rec, joint_values_path(robot_name), joints.names, units, rows, made, self._styled)
             if robot is not None:
                 robot.send_joints(self.rec, moved)
+        framed, frames = SampleBatch(), []  # the poses of moving bodies and robot bases: one chunk
         for name, batch in poses.items():
-            self._send_poses(name, batch, batch.indexes(made))
+            frame = self._pose_frame(name)
+            if frame is None:
+                self._send_poses(body_path(name), batch, batch.indexes(made))
+                continue
+            for row in zip(batch.wall, batch.seq, batch.sim, batch.values):
+                framed.add(*row)
+            frames += [frame] * len(batch.values)
+        if frames:
+            self._send_poses(POSES, framed, framed.indexes(), frames)
 
-    def _send_poses(self, name: str, batch: SampleBatch, indexes: list[rr.TimeColumn]) -> None:
+    def _pose_frame(self, name: str) -> str | None:
+        """The frame a pose over time places: a robot's root link (its base moves), a moving body's frame;
+        None for a body drawn in its entity's own frame."""
+        robot, body = self.robots.get(name), self.bodies.get(name)
+        if robot is not None:
+            return robot.base_frame
+        return body_frame(name) if body is None or body.moving else None
+
+    def _send_poses(self, path: str, batch: SampleBatch, indexes: list[rr.TimeColumn],
+                    frames: list[str] | None = None) -> None:
+        """Poses to `path`: each row placing its frame in `frames` in the scene frame, or without frames
+        the entity's own."""
         translations = np.array([p.p for p in batch.values])
         quaternions = np.array([p.q for p in batch.values])
-        robot = self.robots.get(name)
-        if robot is not None:  # a robot whose base moves: scene frame -> its root link
-            n = len(batch.values)
-            columns = rr.Transform3D.columns(translation=translations, quaternion=quaternions,
-                                             parent_frame=[SCENE_FRAME] * n, child_frame=[robot.base_frame] * n)
-            self.rec.send_columns(f"{robot_path(name)}/base_pose", indexes, columns)
-        else:
-            columns = rr.Transform3D.columns(translation=translations, quaternion=quaternions)
-            self.rec.send_columns(body_path(name), indexes, columns)
+        columns = rr.Transform3D.columns(translation=translations, quaternion=quaternions,
+                                         parent_frame=None if frames is None else [SCENE_FRAME] * len(frames),
+                                         child_frame=frames)
+        self.rec.send_columns(path, indexes, columns)
 
 
 _ARCHETYPES: dict[str, Any] = {"box": rr.Boxes3D, "cylinder": rr.Cylinders3D, "sphere": rr.Ellipsoids3D}
