@@ -19,7 +19,7 @@ from rerun_view import colour_share, viewer_page
 from waiting import eventually
 
 from mesh.messages.scene_description import Body, Pose, Poses, SceneDescription
-from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles, lab_blueprint
+from mesh.recorder.scene_drawer import SceneDrawer, SceneFiles, body_shape, lab_blueprint
 
 MAGENTA = (255, 0, 255)
 TWINMESH = str(Path(sys.executable).with_name("twinmesh"))
@@ -152,31 +152,37 @@ def test_a_replay_draws_the_recording_in_the_browser_and_asks_no_other_host(repl
         assert view.foreign_hosts() == set()
 
 
-# --- a robot's joints: one entity for all its frames, drawn as Rerun draws one entity per joint -------
+# --- moving things placed by rows that name their frames, drawn as Rerun draws one entity per frame ----
 UR10_URDF = (REPO / "tdgen" / "robot" / "models" / "ur10.urdf").read_text()
 UR10_POSE = {"shoulder_pan_joint": 1.2, "shoulder_lift_joint": -1.0, "elbow_joint": 1.5, "wrist_1_joint": 0.8,
              "wrist_2_joint": 0.0, "wrist_3_joint": 0.0}  # rad: far from the zero pose
+CUBE = Body("cube", "box", (0.2, 0.2, 0.2), Pose((0.5, 0.5, 0.1)), (0.9, 0.1, 0.1), moving=True)
+CUBE_MOVED = Pose((0.4, -0.4, 0.3))
 
 
-def ur10_recording(path: Path, pose: dict[str, float], joint_by_joint: bool = False) -> Path:
-    """A UR10 in the pose, as the recorder draws it (its moved joints' transforms as rows of one entity),
-    or, `joint_by_joint`, each joint's transform logged on an entity of its own as Rerun's URDF docs do."""
+def ur10_recording(path: Path, pose: dict[str, float], cube: Pose, one_entity_each: bool = False) -> Path:
+    """A UR10 in `pose` and a cube moved to `cube`, as the recorder draws them (the robot's moved joints
+    as rows of one entity, the cube's pose a row of `world/poses`), or, `one_entity_each`, each joint's
+    transform and the cube's pose logged on an entity of its own, as Rerun's docs do."""
     import rerun as rr
 
     from mesh.messages.scene_description import RobotModel
 
     rec = rr.RecordingStream("twinmesh")
     rec.save(str(path))
-    scene = SceneDescription("ur10", robots=[RobotModel("ur10", "ur10.urdf", Pose((0.0, 0.0, 0.0)))])
+    scene = SceneDescription("ur10", robots=[RobotModel("ur10", "ur10.urdf", Pose((0.0, 0.0, 0.0)))],
+                             bodies=[] if one_entity_each else [CUBE])
     drawer = SceneDrawer(rec)
     assert drawer.draw_scene(SceneFiles(scene, {"ur10.urdf": UR10_URDF}), time.time(), 0) == []
-    if joint_by_joint:
+    if one_entity_each:
         rec.set_time("sim_time", duration=1.0)
         robot = drawer.robots["ur10"]
         for joint, value in pose.items():
             rec.log(f"reference/{joint}", robot.joints[joint].compute_transform(value, clamp=False))
+        rec.log("world/bodies/cube", body_shape(CUBE), static=True)
+        rec.log("world/bodies/cube", rr.Transform3D(translation=cube.p, quaternion=rr.Quaternion(xyzw=cube.q)))
     else:
-        drawer.add_poses(Poses(time=1.0, joints={"ur10": pose}), time.time(), 1)
+        drawer.add_poses(Poses(time=1.0, joints={"ur10": pose}, bodies={"cube": cube}), time.time(), 1)
         drawer.flush()
     rec.send_blueprint(lab_blueprint(scene, ["ur10"], {}))
     rec.disconnect()
@@ -210,9 +216,10 @@ def differing(a: np.ndarray, b: np.ndarray) -> float:
 @pytest.mark.browser
 @pytest.mark.slow
 @pytest.mark.timeout(2400)
-def test_a_robot_whose_joints_share_one_entity_stands_as_one_drawn_joint_by_joint(tmp_path):
-    posed = settled_view(ur10_recording(tmp_path / "posed.rrd", UR10_POSE), tmp_path)
-    reference = settled_view(ur10_recording(tmp_path / "reference.rrd", UR10_POSE, joint_by_joint=True), tmp_path)
-    zero = settled_view(ur10_recording(tmp_path / "zero.rrd", dict.fromkeys(UR10_POSE, 0.0)), tmp_path)
-    assert differing(posed, zero) > 0.05, "the pose is not seen: the test would not tell a robot left at zero"
+def test_a_robot_and_a_cube_placed_by_rows_naming_their_frames_stand_as_drawn_one_entity_each(tmp_path):
+    posed = settled_view(ur10_recording(tmp_path / "posed.rrd", UR10_POSE, CUBE_MOVED), tmp_path)
+    reference = settled_view(ur10_recording(tmp_path / "reference.rrd", UR10_POSE, CUBE_MOVED, one_entity_each=True),
+                             tmp_path)
+    still = settled_view(ur10_recording(tmp_path / "still.rrd", dict.fromkeys(UR10_POSE, 0.0), CUBE.pose), tmp_path)
+    assert differing(posed, still) > 0.05, "the moves are not seen: the test would not tell things left where they were"
     assert differing(posed, reference) < 0.005
