@@ -5,8 +5,8 @@ A .gltf may keep its geometry and textures in files beside it (`buffers[].uri` s
 served scene, the tdgen service fetching a robot's file) needs all of it in one file: the GLB of the same JSON,
 its buffers and images in the one binary chunk. Packed by hand after the glTF 2.0 specification's GLB layout
 rather than exported again by trimesh, so nothing is decoded or encoded again: the same accessors over the same
-bytes, textures included without an image library. Packing is a concatenation, as cheap as reading the files:
-done for each request, nothing kept.
+bytes, textures included without an image library. Packing is one copy of the bytes, nothing decoded: done for
+each request, nothing kept between them.
 
 A .gltf may name files in its own folder or below it only, once `..` and symbolic links are followed: a served
 scene's model never carries a file from elsewhere on its host. `data:` URIs are read from the JSON itself.
@@ -57,13 +57,17 @@ def pack_glb(path: Path) -> bytes:
 
 
 def _packed(path: Path, gltf: dict[str, Any]) -> bytes:
-    blob = bytearray()
+    parts: list[bytes | memoryview] = []  # the binary chunk's pieces, joined once: a model's bytes copied once
+    size = 0
 
-    def append(data: bytes, align: int) -> int:
-        blob.extend(b"\0" * (-len(blob) % align))
-        start = len(blob)
-        blob.extend(data)
-        return start
+    def append(data: bytes | memoryview, align: int) -> int:
+        nonlocal size
+        if size % align:
+            parts.append(b"\0" * (-size % align))
+            size += -size % align
+        parts.append(data)
+        size += len(data)
+        return size - len(data)
 
     starts = []
     for k, buffer in enumerate(gltf.get("buffers") or []):
@@ -72,7 +76,7 @@ def _packed(path: Path, gltf: dict[str, Any]) -> bytes:
         data, length = _content(path, buffer["uri"])[0], int(buffer["byteLength"])
         if len(data) < length:
             raise SceneError(f"{path}: names {buffer['uri']!r} of {length} bytes, which holds {len(data)}")
-        starts.append(append(data[:length], _ALIGN))
+        starts.append(append(memoryview(data)[:length], _ALIGN))
     views = gltf.get("bufferViews") or []
     for view in views:
         for holder in (view, (view.get("extensions") or {}).get("EXT_meshopt_compression")):
@@ -87,17 +91,18 @@ def _packed(path: Path, gltf: dict[str, Any]) -> bytes:
             image.setdefault("mimeType", media)
     if views:
         gltf["bufferViews"] = views
-    if blob:
-        gltf["buffers"] = [{"byteLength": len(blob)}]
+    if size:
+        gltf["buffers"] = [{"byteLength": size}]
     else:
         gltf.pop("buffers", None)
     text = json.dumps(gltf, separators=(",", ":"), ensure_ascii=False).encode()
     text += b" " * (-len(text) % 4)
-    chunks = struct.pack("<II", len(text), _JSON) + text
-    if blob:
-        blob.extend(b"\0" * (-len(blob) % 4))
-        chunks += struct.pack("<II", len(blob), _BIN) + bytes(blob)
-    return struct.pack("<III", _MAGIC, _VERSION, 12 + len(chunks)) + chunks
+    chunks: list[bytes | memoryview] = [struct.pack("<II", len(text), _JSON), text]
+    if size:
+        padding = b"\0" * (-size % 4)
+        chunks += [struct.pack("<II", size + len(padding), _BIN), *parts, padding]
+    length = 12 + sum(len(chunk) for chunk in chunks)
+    return b"".join([struct.pack("<III", _MAGIC, _VERSION, length), *chunks])
 
 
 def _json(path: Path) -> dict[str, Any]:
