@@ -24,7 +24,7 @@ from PIL import Image
 from devices.cli.main import main
 from devices.things.scene_files import SceneAssets
 from mesh.messages.scene_description import Pose, TwinDescription
-from mesh.wot.problem import NotFound
+from mesh.wot.problem import NotFound, Refused
 from tdgen import remote_scene_files
 from tdgen.remote_scene_files import fetched_twin, prune
 from tdgen.robot.scan_io import content_digest, read_mesh
@@ -156,6 +156,22 @@ def test_a_gltf_is_known_by_the_content_of_every_file_it_names(tmp_path):
     after = content_digest(gltf)
     assert after != before and content_digest(gltf) == after
     assert not np.allclose(read_mesh(gltf).extents, SIZE)  # and is read anew
+
+
+def test_the_worlds_scans_folder_takes_a_gltf_with_its_files_and_never_one_naming_a_file_outside(tmp_path):
+    """`addObstacle` serves what it takes: a .gltf in the scans folder may not carry a file from beside it."""
+    from devices.sim.layouts.obstacles import from_input
+
+    scans = tmp_path / "scans"
+    scans.mkdir()
+    write_gltf(scans)
+    (tmp_path / "secret.bin").write_bytes(b"secret" * 40)
+    obstacle = {"name": "crate", "type": "mesh", "file": "crate.gltf", "position": [1.0, 0.0, 0.5]}
+    assert from_input(obstacle, scans).file == str((scans / "crate.gltf").resolve())
+    _rename(scans / "crate.gltf", "crate_1.bin", "../secret.bin")
+    with pytest.raises(Refused, match="names '../secret.bin', outside its folder") as refused:
+        from_input(obstacle, scans)
+    assert refused.value.reason == "unusable-file"
 
 
 # --- fetched by the tdgen service -------------------------------------------------------------------
