@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
@@ -32,6 +33,7 @@ from tdgen.robot.gltf_files import check_whole, is_gltf
 KEPT_COPIES = 32  # beside the twin's own: several robots' scans, a few of each, none fetched again at each change
 KEPT_BYTES = 1 << 30
 PARTS = ".fetching-"  # a copy being written: renamed when whole, removed when writing fails
+STALE_PART_S = 3600.0  # a part this old was left by a service that died writing it: deleted with the copies
 
 
 def fetched_twin(twin: TwinDescription, folder: Path,
@@ -101,14 +103,17 @@ def _copy(twin: TwinDescription, file: str, folder: Path, fetch: Callable[[str],
 
 def prune(folder: Path, keep: set[Path], copies: int = KEPT_COPIES, size: int = KEPT_BYTES) -> list[Path]:
     """Delete the copies in `folder` beyond the last used `copies` that fit in `size` bytes, never one of `keep`
-    (the twin at hand's); returns the deleted ones."""
+    (the twin at hand's), and parts left by a service that died writing them; returns the deleted copies."""
     found = []
     for path in folder.iterdir():
         try:
             stat = path.stat()
         except FileNotFoundError:  # deleted meanwhile
             continue
-        if path not in keep and not path.name.startswith(PARTS) and path.is_file():
+        if path.name.startswith(PARTS):
+            if time.time() - stat.st_mtime > STALE_PART_S:
+                path.unlink(missing_ok=True)
+        elif path not in keep and path.is_file():
             found.append((stat.st_mtime_ns, stat.st_size, path))
     found.sort(reverse=True)  # the last used first
     kept, held = 0, sum(p.stat().st_size for p in keep if p.is_file())

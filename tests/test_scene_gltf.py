@@ -231,7 +231,7 @@ def _scene_of(folder: Path, scene: dict) -> Path:
     return path
 
 
-def test_the_copies_fit_in_their_bytes_the_last_used_kept_and_the_twins_own_always(tmp_path):
+def test_the_copies_fit_in_their_bytes_the_last_used_kept_the_twins_own_always_and_dead_parts_go(tmp_path):
     import os
 
     paths = []
@@ -240,6 +240,9 @@ def test_the_copies_fit_in_their_bytes_the_last_used_kept_and_the_twins_own_alwa
         path.write_bytes(b"x" * 1000)
         os.utime(path, ns=(k * 10**9, k * 10**9))  # the last used: the highest k
         paths.append(path)
+    (tmp_path / ".fetching-dead").write_bytes(b"half a scan")  # a service died writing it, long ago
+    os.utime(tmp_path / ".fetching-dead", ns=(0, 0))
+    (tmp_path / ".fetching-now").write_bytes(b"being written")
     deleted = prune(tmp_path, keep={paths[0]}, copies=10, size=3500)
     assert set(deleted) == set(paths[1:4])  # the twin's own (1000) and the last two used fit in 3500
-    assert sorted(tmp_path.iterdir()) == [paths[0], paths[4], paths[5]]
+    assert sorted(tmp_path.iterdir()) == [tmp_path / ".fetching-now", paths[0], paths[4], paths[5]]
