@@ -1,15 +1,19 @@
 """Test scans whose truth is known: depth images of a scene rendered with pybullet's camera, with sensor
 noise and holes, back-projected to organized clouds in the sensor's frame and written as PCD, PLY or
-XYZ text; an organized cloud triangulated into an open mesh; and the truth figures (how many samples
-near or far from every scanned point a collision model calls free).
+XYZ text; an organized cloud triangulated into an open mesh; the truth figures (how many samples
+near or far from every scanned point a collision model calls free); and a glTF model kept in several files.
 """
 from __future__ import annotations
 
+import io
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import trimesh
+from PIL import Image
 
 from tdgen.robot.surroundings import Surroundings, build_into
 
@@ -195,3 +199,21 @@ class Truth:
     def close(self) -> None:
         for world in [*self.worlds.values(), self.free]:
             world.close()
+
+
+def write_gltf(folder: Path, name: str = "crate", size=(0.4, 0.3, 0.2)) -> Path:
+    """`folder/<name>.gltf` with its geometry in `<name>_*.bin` beside it and a texture in `textures/`."""
+    files = trimesh.exchange.gltf.export_gltf(trimesh.Scene(trimesh.creation.box(size)))
+    gltf = json.loads(files.pop("model.gltf"))
+    for k, buffer in enumerate(gltf["buffers"]):
+        data = files[buffer["uri"]]
+        buffer["uri"] = f"{name}_{k}.bin"
+        (folder / buffer["uri"]).write_bytes(data)
+    (folder / "textures").mkdir(exist_ok=True)
+    png = io.BytesIO()
+    Image.new("RGB", (4, 4), (150, 100, 50)).save(png, "PNG")
+    (folder / "textures" / "wood grain.png").write_bytes(png.getvalue())
+    gltf["images"] = [{"uri": "textures/wood%20grain.png"}]  # a URI: percent-encoded
+    path = folder / f"{name}.gltf"
+    path.write_text(json.dumps(gltf))
+    return path

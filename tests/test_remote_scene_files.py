@@ -24,7 +24,7 @@ import msgspec
 import numpy as np
 import pytest
 from labs import REPO, free_port, stop_process
-from scans import render_scan, write_pcd
+from scans import render_scan, write_gltf, write_pcd
 from waiting import eventually
 
 from mesh.fabric.mesh_client import MeshClient
@@ -176,8 +176,6 @@ def _private_mounts() -> list[str] | str:
 def test_a_robot_process_whose_scan_and_gltf_the_lab_cannot_see_gets_their_flags(lights, scan_file, tmp_path):
     """The scan comes as the robot's file, the chest's .gltf (its geometry in .bin files beside it) as the GLB the
     robot packs of it."""
-    from test_scene_gltf import write_gltf
-
     prefix = _private_mounts()
     if isinstance(prefix, str):
         pytest.skip(prefix)
@@ -234,8 +232,6 @@ def test_a_robot_process_whose_scan_and_gltf_the_lab_cannot_see_gets_their_flags
 def test_a_robot_elsewhere_whose_gltf_names_separate_files_gets_the_td_of_a_local_one(mesh, tmp_path):
     """The robot serves its .gltf (geometry in .bin files, a texture) as the GLB of it; the service fetches that
     and makes the TD, points.csv and hull it makes from the .gltf read where it lies."""
-    from test_scene_gltf import write_gltf
-
     from devices.things.scene_files import SceneAssets
 
     robot_host = tmp_path / "robot-host"

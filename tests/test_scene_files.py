@@ -24,8 +24,7 @@ import numpy as np
 import pytest
 import trimesh
 from labs import stop_process
-from scans import render_scan, write_pcd
-from test_scene_gltf import write_gltf
+from scans import render_scan, write_gltf, write_pcd
 from waiting import eventually
 
 from mesh.messages.relations import POINTS, SCENE, SCENE_ASSET, TWIN, WORKSPACE

@@ -10,7 +10,6 @@ textures inside the buffers).
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import struct
 from pathlib import Path
@@ -19,7 +18,7 @@ import numpy as np
 import pytest
 import trimesh
 from click.testing import CliRunner
-from PIL import Image
+from scans import write_gltf
 
 from devices.cli.main import main
 from devices.things.scene_files import SceneAssets
@@ -36,24 +35,6 @@ SIZE = (0.4, 0.3, 0.2)
 @pytest.fixture(autouse=True)
 def scan_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("TWINMESH_CACHE", str(tmp_path / "cache"))
-
-
-def write_gltf(folder: Path, name: str = "crate", size=SIZE) -> Path:
-    """`folder/<name>.gltf` with its geometry in `<name>_*.bin` beside it and a texture in `textures/`."""
-    files = trimesh.exchange.gltf.export_gltf(trimesh.Scene(trimesh.creation.box(size)))
-    gltf = json.loads(files.pop("model.gltf"))
-    for k, buffer in enumerate(gltf["buffers"]):
-        data = files[buffer["uri"]]
-        buffer["uri"] = f"{name}_{k}.bin"
-        (folder / buffer["uri"]).write_bytes(data)
-    (folder / "textures").mkdir(exist_ok=True)
-    png = io.BytesIO()
-    Image.new("RGB", (4, 4), (150, 100, 50)).save(png, "PNG")
-    (folder / "textures" / "wood grain.png").write_bytes(png.getvalue())
-    gltf["images"] = [{"uri": "textures/wood%20grain.png"}]  # a URI: percent-encoded
-    path = folder / f"{name}.gltf"
-    path.write_text(json.dumps(gltf))
-    return path
 
 
 def glb_parts(glb: bytes) -> tuple[dict, bytes]:
