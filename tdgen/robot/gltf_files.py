@@ -5,7 +5,8 @@ A .gltf may keep its geometry and textures in files beside it (`buffers[].uri` s
 served scene, the tdgen service fetching a robot's file) needs all of it in one file: the GLB of the same JSON,
 its buffers and images in the one binary chunk. Packed by hand after the glTF 2.0 specification's GLB layout
 rather than exported again by trimesh, so nothing is decoded or encoded again: the same accessors over the same
-bytes, textures included without an image library. Packing is one copy of the bytes, nothing decoded: done for
+bytes, textures included without an image library (pygltflib converts the same way, through its dataclasses
+and three more dependencies, for what is a header and two chunks here). Packing is one copy of the bytes, nothing decoded: done for
 each request, nothing kept between them.
 
 A .gltf may name files in its own folder or below it only, once `..` and symbolic links are followed: a served
