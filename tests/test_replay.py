@@ -196,13 +196,13 @@ def settled_view(path: Path, tmp: Path) -> np.ndarray:
         with viewer_page(replaying.url) as view:
             last: list[np.ndarray] = []
 
-            def settled() -> np.ndarray | None:
+            def settled() -> tuple[np.ndarray] | None:
                 pixels = view.view_pixels().astype(int)
                 same = len(last) >= 2 and all(np.abs(pixels - p).max() <= 2 for p in last[-2:])
                 last.append(pixels)
-                return pixels if same and pixels.std() > 10 else None
+                return (pixels,) if same and pixels.std() > 10 else None
 
-            pixels = eventually(settled, timeout=600, interval=3.0, what=f"the view of {path.name} settled")
+            pixels = eventually(settled, timeout=600, interval=3.0, what=f"the view of {path.name} settled")[0]
             assert view.rerun_problems() == []
     finally:
         replaying.stop()
