@@ -1,6 +1,6 @@
 """Rows of one entity held for one `send_columns`: the recorder writes a few times a second, not once a sample.
 
-One `log` call per value costs about twenty times a `send_columns` row, and each call a chunk of its own
+One `log` call per value costs far more than a row of a `send_columns`, and makes a chunk of its own
 (see `mesh.recorder.scene_drawer`); so joint values and poses wait here until the drawer flushes.
 """
 from __future__ import annotations
