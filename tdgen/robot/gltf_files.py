@@ -6,8 +6,8 @@ served scene, the tdgen service fetching a robot's file) needs all of it in one 
 its buffers and images in the one binary chunk. Packed by hand after the glTF 2.0 specification's GLB layout
 rather than exported again by trimesh, so nothing is decoded or encoded again: the same accessors over the same
 bytes, textures included without an image library (pygltflib converts the same way, through its dataclasses
-and three more dependencies, for what is a header and two chunks here). Packing is one copy of the bytes, nothing decoded: done for
-each request, nothing kept between them.
+and three more dependencies, for what is a header and two chunks here). Packing is one copy of the bytes,
+nothing decoded: done for each request, nothing kept between them.
 
 A .gltf may name files in its own folder or below it only, once `..` and symbolic links are followed: a served
 scene's model never carries a file from elsewhere on its host. `data:` URIs are read from the JSON itself.
