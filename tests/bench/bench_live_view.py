@@ -1,6 +1,7 @@
 """The live view's delay behind the lab, what a late viewer needs to be current, the recorder's cost.
 
     python tests/bench/bench_live_view.py [--minutes 10] [--changes 20] [--no-baseline]
+    python tests/bench/bench_live_view.py --count-chunks FILE.rrd ...
 
 Starts `twinmesh up iot-lab --speed max --record FILE` with its live view and HTTP adapter, keeps it
 busy (the cube workflow over and over), and measures in headless Chromium (software WebGL):
@@ -15,7 +16,10 @@ busy (the cube workflow over and over), and measures in headless Chromium (softw
   shown (the current state). Baseline, same lab, same minute: a second view process with the settings
   before (16 MiB of history, the current state not logged again), opened the same way;
 - **recorder**: CPU seconds and resident memory of the lab's `recorder` (the `.rrd` file) and `view`
-  (live view) processes over the measured window, scaled to one hour, and the recording's size.
+  (live view) processes over the measured window, scaled to one hour, and the recording's size;
+- **chunks**: the recording's chunks over time per second and its busiest entities (Rerun's web viewer
+  takes in chunks at a cost each, whatever their rows). The file batches 0.25 s, the live stream 0.5 s:
+  the stream sends fewer. `--count-chunks FILE.rrd` counts another recording (a run at an older commit).
 
 Figures on a shared 2-core machine are noisy; the screenshot baseline says how noisy.
 `--serve-old-view ENDPOINT HOST PORT GRPC_PORT` is this script's own baseline process.
@@ -154,6 +158,34 @@ def serve_old_view(endpoint: str, host: str, port: int, grpc_port: int) -> None:
         refresh=None, batch=None)
 
 
+def chunk_rate(path: Path, top: int = 6) -> str:
+    """Temporal chunks per second of a recording over its `time` span, and its busiest entities (one
+    entity per field, joint or body counted together, as they were before they shared one)."""
+    import collections
+    import warnings
+
+    from rerun.chunk import RrdReader
+
+    warnings.filterwarnings("ignore", message=".*no footer.*")  # a lab stopped by a signal may leave none
+    counts: collections.Counter[str] = collections.Counter()
+    first = last = None
+    for chunk in RrdReader(path).stream():
+        if chunk.is_static:
+            continue
+        group = re.sub(r"^/(world/states|things)/([^/]+)/.*", r"/\1/\2/*", chunk.entity_path)
+        group = re.sub(r"^/world/bodies/.*", "/world/bodies/*", group)
+        counts[re.sub(r"/joints/[^/]+(/[^/]+)?$", "/joints/*", group)] += 1
+        if "time" in chunk.timeline_names:
+            times = chunk.to_record_batch().column("time").to_pylist()
+            first = min(times) if first is None else min(first, *times)
+            last = max(times) if last is None else max(last, *times)
+    if first is None or last is None or last == first:
+        return f"{path}: no chunks over time"
+    span, n = (last - first).total_seconds(), sum(counts.values())
+    busiest = ", ".join(f"{g} {c / span:.1f}/s" for g, c in counts.most_common(top))
+    return f"{n} chunks over time in {span:.0f} s: {n / span:.1f} per second; busiest: {busiest}"
+
+
 def summary(values: list[float]) -> str:
     if not values:
         return "none shown"
@@ -228,9 +260,14 @@ def main(minutes: float, changes: int, baseline: bool) -> None:
               f"memory {rss1 / 2**20:.0f} MiB at the end ({(rss1 - rss0) / 2**20 / hours:+.0f} MiB per hour)")
     size = rrd.stat().st_size / 2**20
     print(f"recording: {size:.1f} MiB ({size / hours:.0f} MiB per hour)")
+    print(f"recording's chunks: {chunk_rate(rrd)}")
 
 
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--count-chunks"]:
+        for name in sys.argv[2:]:
+            print(f"{name}: {chunk_rate(Path(name))}")
+        sys.exit(0)
     if sys.argv[1:2] == ["--serve-old-view"]:
         endpoint, host, port, grpc = sys.argv[2:6]
         serve_old_view(endpoint, host, int(port), int(grpc))
