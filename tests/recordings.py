@@ -40,6 +40,15 @@ def scalars(path: Path, entity: str) -> list[float]:
     return [v[0] for v in read_column(path, entity, "Scalars:scalars")]
 
 
+def field_scalars(path: Path, entity: str, field: str) -> list[float]:
+    """The values one field of an object property took, where the object is plotted as one entity with a
+    series per field (its series named `<field>` or `<field> (<unit>)`)."""
+    names = latest_static(path, entity, "SeriesLines:names")
+    at = [k for k, name in enumerate(names) if name.partition(" (")[0] == field]
+    assert at, f"no series {field!r} at {entity}: {names}"
+    return [row[at[0]] for row in read_column(path, entity, "Scalars:scalars")]
+
+
 def texts(path: Path, entity: str) -> list[str]:
     return [line for v in read_column(path, entity, "TextLog:text") for line in v]
 

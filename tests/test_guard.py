@@ -251,7 +251,7 @@ def test_the_recorder_has_the_real_device_beside_its_twin_on_one_timeline(lab, t
     from labs import stop_process
     from waiting import eventually
 
-    from recordings import scalars, wait_for_line
+    from recordings import field_scalars, wait_for_line
 
     path, log = tmp_path / "guarded.rrd", tmp_path / "recorder.log"
     recorder = lab.spawn("record", str(path), log=log)
@@ -261,7 +261,7 @@ def test_the_recorder_has_the_real_device_beside_its_twin_on_one_timeline(lab, t
     eventually(lambda: location(lab, "uarm-real")[0] == round(170 + OFFSET[0]), timeout=30,
                what="the real uArm's new location on the mesh")
     assert stop_process(recorder), log.read_text()
-    twin_x = scalars(path, "/things/uarm/properties/location/x")
-    real_x = scalars(path, "/things/uarm-real/properties/location/x")
+    twin_x = field_scalars(path, "/things/uarm/properties/location", "x")
+    real_x = field_scalars(path, "/things/uarm-real/properties/location", "x")
     assert twin_x and real_x, log.read_text()
     assert abs(twin_x[-1] - 170) <= 1 and real_x[-1] == round(170 + OFFSET[0])
