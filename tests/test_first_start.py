@@ -181,7 +181,7 @@ def test_the_background_compile_runs_once_at_low_priority_holding_the_lock(monke
     """Two processes of a lab start it at once: one compile runs, niced, and holds the lock that keeps
     any other from starting (taken before it starts, so no race while it imports)."""
     (tmp_path / "dummy_compile.py").write_text(DUMMY_COMPILE)
-    monkeypatch.setenv("TWINMESH_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))  # its own lock, whatever the session compiles
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), *sys.path]))
     monkeypatch.setattr(cores, "_started", threading.Event())
     cores.compile_in_background(types.ModuleType("dummy_compile"))  # run by name in the new process
