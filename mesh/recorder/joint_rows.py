@@ -32,11 +32,17 @@ class JointRows:
     last: dict[str, float] = field(default_factory=dict)  # each joint's latest value
     rows: SampleBatch = field(default_factory=SampleBatch)  # values: one list per sample, in `names` order
     moved: SampleBatch = field(default_factory=SampleBatch)  # values: {joint: value} of those that moved
+    whole: bool = False  # the next sample goes out with every joint, moved or not (`redrawn`)
+
+    def redrawn(self) -> None:
+        """The robot was drawn again (its model's zero pose): its next sample places every joint."""
+        self.whole = True
 
     def add(self, wall: float, seq: int, sim: float | None, values: dict[str, float]) -> None:
-        moved = {j: v for j, v in values.items() if self.last.get(j) != v}
+        moved = dict(values) if self.whole else {j: v for j, v in values.items() if self.last.get(j) != v}
         if not moved:
             return
+        self.whole = False
         self.names += [j for j in moved if j not in self.last]
         self.last.update(moved)
         self.rows.add(wall, seq, sim, [self.last[j] for j in self.names])

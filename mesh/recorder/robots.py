@@ -359,6 +359,8 @@ class RobotDrawer:
                 self.rec.log(thing_robot_path(name), rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
                 robot.draw(self.rec, t.files.twin.base, own_frame(name))
                 t.robot = robot
+                if name in self._joints:  # drawn at its zero pose: the next sample places every joint again
+                    self._joints[name].redrawn()
                 problems += self._draw_own_scene(name, t)
         t.host = host
         if t.workspace is not None and self._frame(t) != t.frame:  # its base frame is another robot's now
