@@ -264,6 +264,8 @@ class SceneDrawer:
                            Path(model.urdf_dir) if model.urdf_dir else None)
         robot.draw(self.rec, model.base)
         self.robots[model.name] = robot
+        if model.name in self._joints:  # drawn at its zero pose: the next sample places every joint again
+            self._joints[model.name].redrawn()
 
     def _draw_body(self, body: Body, wall: float, seq: int, static: bool) -> None:
         """A body of the first scene is static; one added later (an obstacle) exists from the time it was
