@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -115,6 +116,14 @@ def main() -> None:
     args = parser.parse_args()
     root = Path(args.venv_root or tempfile.mkdtemp(prefix="first-start-"))
     root.mkdir(parents=True, exist_ok=True)
+    try:
+        run(args, root)
+    finally:
+        if not args.venv_root:  # a temporary folder of about 1.5 GB per checkout: a --venv-root is kept
+            shutil.rmtree(root, ignore_errors=True)
+
+
+def run(args: argparse.Namespace, root: Path) -> None:
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; scene {args.scene}; in {root}", flush=True)
     results = {}
     if args.baseline:

@@ -30,6 +30,7 @@ import argparse
 import json
 import os
 import re
+import shutil
 import signal
 import statistics
 import subprocess
@@ -197,10 +198,10 @@ def seconds(value: float | None, limit: float) -> str:
     return f"not within {limit:.0f} s" if value is None else f"{value:.1f} s"
 
 
-def main(minutes: float, changes: int, baseline: bool) -> None:
+def main(minutes: float, changes: int, baseline: bool, keep: bool) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="bench-live-view-"))
     rrd = tmp / "lab.rrd"
-    print(f"lab files in {tmp}", flush=True)
+    print(f"lab files in {tmp}" + ("" if keep else " (removed at the end; --keep keeps them)"), flush=True)
     lab = start_lab(tmp, "iot-lab", http=True, view=True, things={"world", "light-left"},
                     extra_args=("--speed", "max", "--record", str(rrd)))
     stop = threading.Event()
@@ -261,6 +262,8 @@ def main(minutes: float, changes: int, baseline: bool) -> None:
     size = rrd.stat().st_size / 2**20
     print(f"recording: {size:.1f} MiB ({size / hours:.0f} MiB per hour)")
     print(f"recording's chunks: {chunk_rate(rrd)}")
+    if not keep:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 if __name__ == "__main__":
@@ -276,5 +279,6 @@ if __name__ == "__main__":
     parser.add_argument("--minutes", type=float, default=10.0, help="how long the lab runs before the late viewer")
     parser.add_argument("--changes", type=int, default=20, help="colour changes per delay measurement")
     parser.add_argument("--no-baseline", action="store_true", help="no second view with the settings before")
+    parser.add_argument("--keep", action="store_true", help="keep the lab's files (logs, recording) at the end")
     args = parser.parse_args()
-    main(args.minutes, args.changes, not args.no_baseline)
+    main(args.minutes, args.changes, not args.no_baseline, args.keep)

@@ -20,6 +20,7 @@ Client, lab and robots share the machine's cores: figures are for comparison, no
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 import tempfile
 import time
@@ -152,6 +153,7 @@ def main() -> None:
     ap.add_argument("--restarts", type=int, default=3)
     ap.add_argument("--realtime-moves", type=int, default=5)
     ap.add_argument("--far-moves", type=int, default=20)
+    ap.add_argument("--keep", action="store_true", help="keep the lab's files (logs, TD cache) at the end")
     args = ap.parse_args()
     robot = Robot.load(args.robot)
     tmp = Path(tempfile.mkdtemp(prefix="bench-robot-"))
@@ -213,6 +215,10 @@ def main() -> None:
         print(f"  wall - simulated   {ms(over)}")
     finally:
         lab.stop()
+        if args.keep:
+            print(f"lab files kept in {tmp}")
+        else:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ median of the rounds. CPU seconds, not wall time: the machine is shared.
 from __future__ import annotations
 
 import argparse
+import shutil
 import statistics
 import sys
 import tempfile
@@ -55,16 +56,23 @@ def main() -> None:
     files.append(("mesh", folder / "sphere.stl"))
     assets = SceneAssets()
     assets.add([{"type": kind, "file": str(path)} for kind, path in files])
-    served = {asset.path: asset for asset in assets.assets()}
     print(f"{'file':28} {'MB':>6} {'read (baseline)':>16} {'read_asset':>11}  drawn")
+    try:
+        _measure(files, assets, args.rounds)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _measure(files: list[tuple[str, Path]], assets: SceneAssets, rounds: int) -> None:
+    served = {asset.path: asset for asset in assets.assets()}
     for kind, path in files:
         asset = served[path]
         data = asset.read()
         made = read_asset(kind, asset.name, data)
         drawn = f"{len(made.points):,} of {made.total:,} points" if kind == "points" else \
             f"{len(made.triangles):,} triangles"
-        print(f"{path.name:28} {len(data) / 1e6:6.1f} {_cpu(asset.read, args.rounds) * 1e3:13.1f} ms "
-              f"{_cpu(lambda: read_asset(kind, asset.name, data), args.rounds) * 1e3:8.0f} ms  {drawn}")
+        print(f"{path.name:28} {len(data) / 1e6:6.1f} {_cpu(asset.read, rounds) * 1e3:13.1f} ms "
+              f"{_cpu(lambda: read_asset(kind, asset.name, data), rounds) * 1e3:8.0f} ms  {drawn}")
 
 
 if __name__ == "__main__":
