@@ -13,6 +13,23 @@ const fs = require("fs");
 const path = require("path");
 const jsonld = require("jsonld");  // the instance the Playground core uses (hoisted by npm)
 const core = require("@thing-description-playground/core");
+
+// The assertion checks make a new Ajv and compile each of their ~300 assertion schemas for every document
+// (`util.validate`), which is nearly all of the Playground's time. The same schema, compiled once with the same
+// options, validates the same way: compile each schema once per process and keep its Ajv. Patched before the
+// assertions module loads, as its checks take `validate` from `util` when they load.
+const util = require("@thing-description-playground/assertions/util");
+const compiled = new Map();  // a schema's JSON -> the Ajv it was compiled into
+const validateOnce = util.validate;
+util.validate = (jsonData, schema, logFunc) => {
+    const key = JSON.stringify(schema);
+    let ajv = compiled.get(key);
+    if (ajv === undefined) {
+        ajv = validateOnce({}, schema, logFunc).ajvObject;  // the Playground's own Ajv, options and formats
+        compiled.set(key, ajv);
+    }
+    return { valid: ajv.validate("assertion", jsonData), ajvObject: ajv };
+};
 const assertions = require("@thing-description-playground/assertions");
 
 const CONTEXTS = {
