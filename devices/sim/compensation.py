@@ -83,6 +83,8 @@ class KinematicArm:
         self.q = np.zeros(len(self.main))
         self.extra: dict[str, float] = {}
         self._targets: list[tuple[int, float]] = []
+        self._hold_joints: list[int] = []
+        self._hold_values: list[list[float]] = []
         if world is not None:
             world.add_post_step(self.hold)
 
@@ -100,9 +102,10 @@ class KinematicArm:
         self.hold()
 
     def hold(self, dt: float = 0.0) -> None:
-        """Every joint back to its commanded value, at rest. Stepping thread."""
-        for i, v in self._targets:
-            pb.resetJointState(self.body, i, v, physicsClientId=self.client)
+        """Every joint back to its commanded value, at rest. Stepping thread. One call for the whole arm:
+        pybullet updates the body's links once per call, and this runs after every physics step."""
+        if self._hold_joints:
+            pb.resetJointStatesMultiDof(self.body, self._hold_joints, self._hold_values, physicsClientId=self.client)
 
     def _update_targets(self) -> None:
         targets = list(zip(self._main_idx, map(float, self.q)))
@@ -110,6 +113,8 @@ class KinematicArm:
             targets += zip(self._passive_idx, map(float, self._compensation(self.q[None])[0]))
         targets += [(self.joint_index[n], v) for n, v in self.extra.items()]
         self._targets = targets
+        self._hold_joints = [i for i, _ in targets]
+        self._hold_values = [[v] for _, v in targets]
 
     def link_pose(self, link: str) -> Pose:
         st = pb.getLinkState(self.body, self.link_index[link], computeForwardKinematics=True,
