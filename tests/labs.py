@@ -146,10 +146,14 @@ def interrupt(p: subprocess.Popen, log: Path, hang: float = 10.0) -> None:
     assert stopped_alone and p.returncode == 0, f"exit {p.returncode} after Ctrl-C\n{log.read_text()[-3000:]}"
 
 
-def stop_process(p: subprocess.Popen, timeout: float = 15.0) -> bool:
+def stop_process(p: subprocess.Popen, timeout: float = 15.0, sig: int = signal.SIGINT) -> bool:
+    """Stop `p`'s process group with `sig` (Ctrl-C) and wait; True if it stopped by itself within `timeout`,
+    else its threads' stacks go to its log and the group is killed. Only processes that handle `sig`
+    themselves stop on SIGINT wherever the tests run: a run started in the background by a script (`cmd &`)
+    hands its children SIGINT ignored, and a process that takes Python's or node's default keeps it ignored."""
     if p.poll() is not None:
         return True
-    os.killpg(p.pid, signal.SIGINT)
+    os.killpg(p.pid, sig)
     try:
         p.wait(timeout)
         return True

@@ -136,8 +136,8 @@ def hosts(n: int, net: int | None = None) -> Iterator[Network]:
         from tests.labs import stop_process
 
         for host in made:
-            for p in host.procs:
-                stop_process(p, 20)
+            for p in host.procs:  # SIGTERM: a plain program started with SIGINT ignored stops on it too
+                stop_process(p, 20, signal.SIGTERM)
         for host in made:
             _ip("netns", "del", host.name, check=False)
         _ip("link", "del", bridge, check=False)
