@@ -34,7 +34,7 @@ PAD = 0.006  # m each box grows: a sample within 5 mm of a scanned point collide
 DEFAULT_VOXEL = 0.02  # m
 COACD_THRESHOLD = 0.05  # CoACD's concavity bound (of the mesh's size): lower makes more, tighter parts
 MAX_PARTS = 128  # pybullet's links per created body (127) and its base
-FORMAT = 4  # the cache entries' layout: a change makes old entries unused
+FORMAT = 5  # the cache entries' layout: a change makes old entries unused
 
 
 @dataclass
@@ -115,10 +115,17 @@ def _prepared(path: Path, params: tuple, make) -> Prepared:
 
 
 def _store(entry: Path, p: Prepared) -> None:
-    arrays: dict[str, np.ndarray] = {"kind": np.array(p.kind), "low": p.low, "high": p.high, "boxes": p.boxes,
-                                     "stats": np.array(list(p.stats.items()), dtype=object)}
-    for k, (v, t) in enumerate(p.parts):
-        arrays[f"v{k}"], arrays[f"t{k}"] = v, t
+    """The pieces as two arrays and their lengths (a scan has hundreds: one array each made reading the entry
+    cost more than what it saves), no pickled object (a cache entry is data, never code)."""
+    vertices = [v for v, _ in p.parts]
+    triangles = [t for _, t in p.parts]
+    arrays: dict[str, np.ndarray] = {
+        "kind": np.array(p.kind), "low": p.low, "high": p.high, "boxes": p.boxes,
+        "stat_names": np.array(list(p.stats), dtype=str), "stat_values": np.array(list(p.stats.values()), dtype=np.int64),
+        "vertices": np.concatenate(vertices) if vertices else np.zeros((0, 3)),
+        "triangles": np.concatenate(triangles) if triangles else np.zeros((0, 3), dtype=np.int64),
+        "vertex_counts": np.array([len(v) for v in vertices], dtype=np.int64),
+        "triangle_counts": np.array([len(t) for t in triangles], dtype=np.int64)}
     try:
         entry.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=entry.parent, suffix=".npz", delete=False) as f:
@@ -130,10 +137,12 @@ def _store(entry: Path, p: Prepared) -> None:
 
 def _load(entry: Path) -> Prepared | None:
     try:
-        with np.load(entry, allow_pickle=True) as z:
-            parts = [(z[f"v{k}"], z[f"t{k}"]) for k in range(sum(1 for n in z.files if n.startswith("v")))]
-            return Prepared(str(z["kind"]), parts, {str(a): int(b) for a, b in z["stats"]}, z["low"], z["high"],
-                            z["boxes"])
+        with np.load(entry, allow_pickle=False) as z:
+            vertex_counts, triangle_counts = z["vertex_counts"], z["triangle_counts"]
+            vertices = np.split(z["vertices"], np.cumsum(vertex_counts)[:-1]) if len(vertex_counts) else []
+            triangles = np.split(z["triangles"], np.cumsum(triangle_counts)[:-1]) if len(triangle_counts) else []
+            stats = {str(a): int(b) for a, b in zip(z["stat_names"], z["stat_values"])}
+            return Prepared(str(z["kind"]), list(zip(vertices, triangles)), stats, z["low"], z["high"], z["boxes"])
     except (OSError, KeyError, ValueError):
         return None
 
