@@ -7,9 +7,11 @@ the lights off and white, the platform's world reset; what the module started on
 must be listed alone again before the next module borrows it. The lab stops with the session, and
 must stop cleanly.
 
-The `iot-lab` is shared the same way by the modules that used to start it alike (`iot_lab`); a session
-fixture lives once per xdist worker, so those modules are one unit of work (`SHARED_LAB`), run by one
-worker; every other module is a unit of its own, as under `--dist loadfile`. (xdist's own `xdist_group`
+The `iot-lab` and the `iot-platform` lab are shared the same way by the modules that borrow them
+(`iot_lab`, `platform`); a session fixture lives once per xdist worker, so those modules are one unit of
+work each (`SHARED_LAB`), run by one worker, and the lab stops when the unit's last module is done (an
+idle lab steps its physics world in real time); every other module is a unit of its own, as under
+`--dist loadfile`. (xdist's own `xdist_group`
 marks do nothing with pytest 9: `--dist loadgroup` then hands out every test alone.)
 
 Test helpers (`labs`, `waiting`, `probe`, `recordings`, `arms`, `zoo`, `tdschema`, `interop`) are
@@ -25,12 +27,15 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from labs import PLATFORM_THINGS, Lab, start_lab, start_robot_lab  # noqa: E402
+from labs import PLATFORM_THINGS, Lab, SharedLab, start_lab, start_robot_lab  # noqa: E402
 from waiting import eventually  # noqa: E402
 
-# modules that borrow one session lab, by the xdist unit of work that keeps them on one worker
+# modules that borrow one session lab, by the xdist unit of work that keeps them on one worker: the lab
+# stops when the unit's last module is done (`_last_of_unit`), not idle until the session ends
 SHARED_LAB = {"tests/test_fuzz_affordances.py": "iot-lab", "tests/test_iot_lab.py": "iot-lab",
-              "tests/test_td_conformance.py": "iot-lab"}
+              "tests/test_td_conformance.py": "iot-lab",
+              "tests/test_examples.py": "iot-platform", "tests/test_platform_tds.py": "iot-platform",
+              "tests/test_platform_mesh.py": "iot-platform", "tests/test_workflow.py": "iot-platform"}
 IOT_LAB_THINGS = PLATFORM_THINGS | {"ur10", "light-left", "light-right", "pan-tilt-1", "pan-tilt-2", "tdgen"}
 LIGHTS_THINGS = frozenset({"light-left", "light-right", "tdgen"})  # `up` always starts the TD generator
 PLATFORM_LISTED = PLATFORM_THINGS | {"tdgen"}
@@ -104,20 +109,32 @@ def lights(lights_lab) -> Iterator[Lab]:
         yield lab
 
 
+def _last_of_unit(request: pytest.FixtureRequest) -> bool:
+    """Whether the requesting module is the last of its `SHARED_LAB` unit this session runs: after it, no
+    module borrows that unit's lab again (the unit runs whole on one worker, in the session's order)."""
+    module = request.node.nodeid.split("::", 1)[0]
+    unit = SHARED_LAB.get(module)
+    modules = [m for m in (item.nodeid.split("::", 1)[0] for item in request.session.items) if SHARED_LAB.get(m) == unit]
+    return unit is not None and modules[-1:] == [module]
+
+
 @pytest.fixture(scope="session")
-def platform_lab(tmp_path_factory) -> Iterator[Lab]:
-    """`twinmesh up iot-platform --speed max` with the adapter."""
-    lab = start_lab(tmp_path_factory.mktemp("shared-platform"), "iot-platform", http=True, things=set(PLATFORM_LISTED),
-                    extra_args=("--speed", "max"))
-    yield lab
-    assert lab.stop(), "the shared iot-platform lab did not stop cleanly on Ctrl-C"
+def platform_lab(tmp_path_factory) -> Iterator[SharedLab]:
+    """`twinmesh up iot-platform --speed max` with the adapter, started when a module first borrows it."""
+    shared = SharedLab(lambda: start_lab(tmp_path_factory.mktemp("shared-platform"), "iot-platform", http=True,
+                                         things=set(PLATFORM_LISTED), extra_args=("--speed", "max")),
+                       "the shared iot-platform lab")
+    yield shared
+    shared.close()
 
 
 @pytest.fixture(scope="module")
-def platform(platform_lab) -> Iterator[Lab]:
+def platform(platform_lab, request) -> Iterator[Lab]:
     """The shared iot-platform lab, its world reset (cubes in the warehouse, arms home, belts stopped)."""
-    with lend(platform_lab, PLATFORM_LISTED, _world_reset) as lab:
+    with lend(platform_lab.get(), PLATFORM_LISTED, _world_reset) as lab:
         yield lab
+    if _last_of_unit(request):
+        platform_lab.close()
 
 
 def _room_reset(lab: Lab) -> None:
@@ -132,19 +149,24 @@ def _room_reset(lab: Lab) -> None:
 
 
 @pytest.fixture(scope="session")
-def iot_lab_shared(tmp_path_factory, tdgen_cache) -> Iterator[Lab]:
+def iot_lab_shared(tmp_path_factory, tdgen_cache) -> Iterator[SharedLab]:
     """`twinmesh up --speed max --samples 4000` (the iot-lab) with the adapter and the session's tdgen cache."""
-    lab = start_lab(tmp_path_factory.mktemp("shared-iot-lab"), None, http=True, things=set(IOT_LAB_THINGS),
-                    extra_args=("--speed", "max", "--samples", "4000", "--tdgen-cache", str(tdgen_cache)))
-    yield lab
-    assert lab.stop(), "the shared iot-lab did not stop cleanly on Ctrl-C"
+    shared = SharedLab(lambda: start_lab(tmp_path_factory.mktemp("shared-iot-lab"), None, http=True,
+                                         things=set(IOT_LAB_THINGS),
+                                         extra_args=("--speed", "max", "--samples", "4000", "--tdgen-cache",
+                                                     str(tdgen_cache))),
+                       "the shared iot-lab")
+    yield shared
+    shared.close()
 
 
 @pytest.fixture(scope="module")
-def iot_lab(iot_lab_shared) -> Iterator[Lab]:
+def iot_lab(iot_lab_shared, request) -> Iterator[Lab]:
     """The shared iot-lab, its room reset, for this module (which `SHARED_LAB` names)."""
-    with lend(iot_lab_shared, IOT_LAB_THINGS, _room_reset) as lab:
+    with lend(iot_lab_shared.get(), IOT_LAB_THINGS, _room_reset) as lab:
         yield lab
+    if _last_of_unit(request):
+        iot_lab_shared.close()
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

@@ -11,7 +11,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -133,6 +133,26 @@ class Lab:
         for p in [*self.extra, self.proc]:
             clean &= stop_process(p, timeout)
         return clean
+
+
+class SharedLab:
+    """A lab that modules borrow in turn (conftest's session labs): started on first use, stopped by `close`
+    once no module will borrow it again (the last module of its unit of work is done) or with the session.
+    An idle lab with a physics world still steps it in real time, a tenth of a core or more."""
+
+    def __init__(self, start: Callable[[], Lab], name: str):
+        self._start, self.name = start, name
+        self.lab: Lab | None = None
+
+    def get(self) -> Lab:
+        if self.lab is None:
+            self.lab = self._start()
+        return self.lab
+
+    def close(self) -> None:
+        lab, self.lab = self.lab, None
+        if lab is not None:
+            assert lab.stop(), f"{self.name} did not stop cleanly on Ctrl-C"
 
 
 def interrupt(p: subprocess.Popen, log: Path, hang: float = 10.0) -> None:
