@@ -111,6 +111,24 @@ def test_a_gltf_naming_a_file_it_cannot_have_is_one_line_naming_both_and_exit_2(
     assert len(lines) == 1 and "crate.gltf" in lines[0] and said in lines[0], shown.output
 
 
+@pytest.mark.parametrize("files_beside", [True, False], ids=["its-files-beside-it", "its-files-missing"])
+def test_a_glb_naming_files_outside_itself_is_one_line_and_exit_2(tmp_path, files_beside):
+    """A GLB is served as it is: one naming files would reach a consumer on another host without them."""
+    gltf = json.loads(write_gltf(tmp_path).read_text())
+    if not files_beside:
+        for file in tmp_path.glob("crate_*.bin"):
+            file.unlink()
+    chunk = json.dumps(gltf).encode()
+    chunk += b" " * (-len(chunk) % 4)
+    (tmp_path / "crate.glb").write_bytes(struct.pack("<III", 0x46546C67, 2, 20 + len(chunk))
+                                         + struct.pack("<II", len(chunk), 0x4E4F534A) + chunk)
+    shown = CliRunner().invoke(main, ["scene", "show", str(_scene(tmp_path, "crate.glb"))])
+    assert shown.exit_code == 2
+    lines = shown.output.strip().splitlines()
+    assert len(lines) == 1 and "crate.glb" in lines[0] and "names 'crate_0.bin' outside itself" in lines[0], \
+        shown.output
+
+
 def _rename(gltf: Path, uri: str, to: str) -> None:
     gltf.write_text(gltf.read_text().replace(f'"{uri}"', f'"{to}"'))
 

@@ -48,6 +48,30 @@ def check_whole(path: Path) -> None:
             raise SceneError(f"{path}: names {uri!r}, which is not there ({file})")
 
 
+def check_glb_alone(path: Path) -> None:
+    """A SceneError naming the .glb `path` and the first file its JSON names: a GLB is served as it is, so it
+    must hold its buffers and images itself (the specification lets it name files; a consumer on another host
+    would get none of them)."""
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise SceneError(f"{path}: cannot read the file ({e.strerror})") from None
+    if len(data) < 20:
+        return  # too short for a JSON chunk: the mesh reader says what is wrong with it
+    magic, _, _ = struct.unpack_from("<III", data, 0)
+    length, kind = struct.unpack_from("<II", data, 12)
+    if magic != _MAGIC or kind != _JSON:
+        return
+    try:
+        gltf = json.loads(data[20:20 + length].decode("utf-8"))
+    except ValueError:
+        return
+    named = [uri for uri in _uris(gltf) if not uri.startswith("data:")] if isinstance(gltf, dict) else []
+    if named:
+        raise SceneError(f"{path}: names {named[0]!r} outside itself (a .glb must hold its buffers and images; "
+                         "name the .gltf with its files beside it instead, or pack them into the .glb)")
+
+
 def pack_glb(path: Path) -> bytes:
     """The .gltf `path` as one GLB: its JSON with every buffer and image in the binary chunk."""
     gltf = _json(path)

@@ -69,6 +69,8 @@ def read_mesh(path: Path, scale: float = 1.0):
     _readable(path)
     if gltf_files.is_gltf(path):  # said here, naming both files, not as the loader's FileNotFoundError
         gltf_files.check_whole(path)
+    elif suffix == ".glb":
+        gltf_files.check_glb_alone(path)
     try:
         mesh = trimesh.load(str(path), force="mesh", process=True)
     except Exception as exc:
