@@ -86,7 +86,7 @@ class KinematicArm:
         self._hold_joints: list[int] = []
         self._hold_values: list[list[float]] = []
         if world is not None:
-            world.add_post_step(self.hold)
+            world.add_post_step(self.hold, physics=True)  # only gravity bends it
 
     def apply(self, q: Vec) -> None:
         """Set the main joints (and the passive ones from them). Stepping thread."""

@@ -9,6 +9,12 @@ take on the wall clock, never what they do. At speed None an idle world (no moti
 no activity check saying something moves, e.g. a running belt) steps in real time instead of
 spinning a core; simulated physics is the same either way.
 
+An idle world whose bodies have all been still for `REST_AFTER` simulated seconds rests: its steps go on
+(simulated time, the hooks, sensors and snapshots) but the physics engine is not asked to step bodies that
+do not move, most of what an idle lab costs. A motion, an activity, or a command that changes the physical
+state (a body added, removed or moved, a joint set: compared before and after it) wakes it at once; a
+command that only reads, or changes what has no physics (a lamp's colour), leaves it resting.
+
 Callbacks for the outside (sensor events, pose snapshots for a recorder) run on a separate
 notifier thread, in order, so a slow subscriber never stalls the physics.
 """
@@ -56,6 +62,10 @@ Hook = Callable[[float], None]
 
 DEFAULT_DT = 1.0 / 240.0
 MAX_LAG = 0.25  # s of wall time; a world further behind real time stops trying to catch up
+REST_AFTER = 0.5  # s of simulated time with every body still before an idle world rests (`_still`)
+REST_CHECK = 0.1  # s of simulated time between two looks at the bodies' velocities
+STILL_LINEAR, STILL_ANGULAR = 1e-3, 1e-2  # m/s and rad/s (bodies and joints): below these a body is still
+REST_BATCH = 0.025  # s of wall time a resting world's steps are run together in, rather than one wake-up each
 PEAK_SPEED = 1.5  # an Interpolation's top speed over its mean speed (smoothstep)
 
 
@@ -168,11 +178,17 @@ class World:
         self.held: set[int] = set()  # bodies attached to a robot: belts leave them alone
         self._time = 0.0
         self._steps = 0
+        self.physics_steps = 0  # the steps the physics engine stepped (not while resting)
+        self.rest = True  # may an idle world rest (False: the physics steps as long as the world does)
+        self._resting: tuple | None = None  # the physical state it rests in (`_physical_state`), or None
+        self._still_for = 0.0  # s of simulated time every body has been still, looked at every REST_CHECK
+        self._next_check = 0.0
         self._commands: queue.SimpleQueue[tuple[Callable[[], Any], Future]] = queue.SimpleQueue()
         self._wake = threading.Event()
         self._motions: list[tuple[Motion, Future]] = []
         self._pre: list[Hook] = []
         self._post: list[Hook] = []
+        self._post_physics: list[Hook] = []
         self._activity: list[Callable[[], bool]] = []
         self._sources: list[Callable[[Snapshot], None]] = []
         self._subscribers: list[Callable[[Snapshot], None]] = []
@@ -256,6 +272,11 @@ class World:
         return self._steps
 
     @property
+    def resting(self) -> bool:
+        """Whether the physics engine is left alone (an idle world whose bodies are all still)."""
+        return self._resting is not None
+
+    @property
     def running(self) -> bool:
         return self._thread is not None and not self._stop
 
@@ -332,9 +353,11 @@ class World:
         """`hook(dt)` on the stepping thread before every physics step (belts set velocities here)."""
         self._pre.append(hook)
 
-    def add_post_step(self, hook: Hook) -> None:
-        """`hook(dt)` on the stepping thread after every physics step (sensors look here)."""
-        self._post.append(hook)
+    def add_post_step(self, hook: Hook, physics: bool = False) -> None:
+        """`hook(dt)` on the stepping thread after every step (sensors look here); `physics`: only after the
+        steps the physics engine stepped (what puts bodies back after gravity moved them: nothing to do while
+        the world rests)."""
+        (self._post_physics if physics else self._post).append(hook)
 
     def add_activity(self, active: Callable[[], bool]) -> None:
         """`active()` (stepping thread) says whether something moves besides the motions (a running belt)."""
@@ -380,9 +403,11 @@ class World:
         try:
             while not self._stop:
                 self._run_commands()
+                idle = self.idle()
+                self._settle(idle)
                 self._step()
                 speed = self._speed
-                if speed is None and not self.idle():
+                if speed is None and not idle:
                     time.sleep(0)  # let waiting threads have the GIL between steps
                     next_wall = time.monotonic()
                     continue
@@ -390,10 +415,14 @@ class World:
                 now = time.monotonic()
                 if now - next_wall > MAX_LAG:
                     next_wall = now
-                while not self._stop and (left := next_wall - time.monotonic()) > 0:
+                # resting, the steps of REST_BATCH run together: one wake-up for them, not one each
+                until = next_wall + (REST_BATCH if self._resting is not None else 0.0)
+                while not self._stop and (left := until - time.monotonic()) > 0:
                     if self._wake.wait(min(left, 0.25)):  # short waits: no timeout ever overflows
                         self._wake.clear()
                         self._run_commands()
+                        if self._resting is None:
+                            until = min(until, next_wall)  # woken: one step at a time again
                         if self._speed is None and not self.idle():
                             break  # a motion started: full speed from now on
         except BaseException as exc:  # a broken world must not leave callers waiting forever
@@ -405,20 +434,76 @@ class World:
                 _call_logged(hook, ())
 
     def _run_commands(self) -> None:
+        ran = False
         while True:
             try:
                 fn, fut = self._commands.get_nowait()
             except queue.Empty:
-                return
+                break
             if fut.set_running_or_notify_cancel():
                 _settle(fut, fn)
+                ran = True
+        if ran and self._resting is not None and self._physical_state() != self._resting:
+            self._wake_physics()
+
+    # --- resting ------------------------------------------------------------------------------
+    def _settle(self, idle: bool) -> None:
+        """Rest once an idle world's bodies have been still for REST_AFTER; wake when it is idle no more."""
+        if not idle or not self.rest:
+            if self._resting is not None or self._still_for:
+                self._wake_physics()
+            return
+        if self._resting is not None or self._time + 1e-9 < self._next_check:
+            return
+        self._next_check = self._time + REST_CHECK
+        self._still_for = self._still_for + REST_CHECK if self._still() else 0.0
+        if self._still_for + 1e-9 >= REST_AFTER:
+            self._resting = self._physical_state()
+
+    def _wake_physics(self) -> None:
+        self._resting, self._still_for = None, 0.0
+        self._next_check = self._time + REST_CHECK
+
+    def _bodies(self) -> list[int]:
+        c = self.client
+        return [pb.getBodyUniqueId(i, physicsClientId=c) for i in range(pb.getNumBodies(physicsClientId=c))]
+
+    def _still(self) -> bool:
+        """Every body and joint moves slower than STILL_LINEAR / STILL_ANGULAR."""
+        c = self.client
+        for body in self._bodies():
+            linear, angular = pb.getBaseVelocity(body, physicsClientId=c)
+            if max(map(abs, linear)) > STILL_LINEAR or max(map(abs, angular)) > STILL_ANGULAR:
+                return False
+            joints = pb.getNumJoints(body, physicsClientId=c)
+            if joints and any(abs(state[1]) > STILL_ANGULAR
+                              for state in pb.getJointStates(body, range(joints), physicsClientId=c)):
+                return False
+        return True
+
+    def _physical_state(self) -> tuple:
+        """Every body's pose and velocity and every joint's position and velocity: what a command that
+        changes the physics changes."""
+        c = self.client
+        state: list = []
+        for body in self._bodies():
+            state.append((body, pb.getBasePositionAndOrientation(body, physicsClientId=c),
+                          pb.getBaseVelocity(body, physicsClientId=c)))
+            joints = pb.getNumJoints(body, physicsClientId=c)
+            if joints:
+                state.append(tuple(s[:2] for s in pb.getJointStates(body, range(joints), physicsClientId=c)))
+        return tuple(state)
 
     def _step(self) -> None:
         dt = self.dt
         self._advance_motions(dt)
         for hook in self._pre:
             hook(dt)
-        pb.stepSimulation(physicsClientId=self.client)
+        if self._resting is None:
+            pb.stepSimulation(physicsClientId=self.client)
+            self.physics_steps += 1
+            for hook in self._post_physics:
+                hook(dt)
         self._time += dt
         self._steps += 1
         for hook in self._post:
