@@ -115,8 +115,8 @@ def _prepared(path: Path, params: tuple, make) -> Prepared:
 
 
 def _store(entry: Path, p: Prepared) -> None:
-    """The pieces as two arrays and their lengths (a scan has hundreds: one array each made reading the entry
-    cost more than what it saves), no pickled object (a cache entry is data, never code)."""
+    """The pieces as two arrays and their lengths, the stats as names and numbers: nothing pickled, so the entry
+    is read with `allow_pickle=False` (a cache entry is data, never code)."""
     vertices = [v for v, _ in p.parts]
     triangles = [t for _, t in p.parts]
     arrays: dict[str, np.ndarray] = {
