@@ -46,7 +46,7 @@ class LiveState:
     """A RecordingStream that logs the current state again on a flush (see the module's docstring);
     everything else is the stream's own (`send_blueprint`, `send_chunks`, `set_sinks`, ...)."""
 
-    def __init__(self, rec: rr.RecordingStream, budget: int):
+    def __init__(self, rec: Any, budget: int):  # a RecordingStream, or one wrapped (`live_rows`)
         self.rec = rec
         self.budget = budget
         self.logged = 0  # bytes of temporal data logged so far (estimated)

@@ -14,6 +14,14 @@ bytes have been logged behind it, so that newest part always holds the whole cur
 late viewer has little history to take in before it is current. The `.rrd` file of `--record` is
 a separate recorder and keeps everything.
 
+What a browser can take in is the limit of a live view, and it is transform rows (poses placing a
+frame), not chunks, plots or the scene's size: the viewer takes in data for a few milliseconds of
+each frame it draws, a transform row costs it far more than a scalar, and a browser drawing a few
+frames a second (software WebGL, a loaded machine; a bigger window draws fewer) fell minutes behind
+a `--speed max` lab's every pose (`tests/bench/bench_viewer_capacity.py`, one factor at a time). So
+the stream sends each frame's newest pose per `BATCH` only (`mesh.recorder.live_rows`): nobody sees
+the poses in between, and the view shows where everything is now. Plots keep every sample.
+
 The stream is served on the view's own host (127.0.0.1 unless `twinmesh up --view HOST:PORT` names
 another): Rerun's own default would be every interface.
 """
@@ -27,10 +35,10 @@ from mesh.fabric.settings import MeshSettings
 
 MEMORY = "4MiB"  # the newest part of the stream the gRPC server keeps for a late viewer (static data besides)
 REFRESH = 1 << 20  # bytes: an entity with this much logged behind it is logged again (a quarter of MEMORY)
-# Rerun's web viewer takes in new chunks for about 10 ms per frame it draws, and a chunk costs it about the
-# same whatever its rows: a browser that draws a frame slowly (software WebGL, a busy machine) falls behind
-# a stream of many small chunks and never catches up. So the live stream batches longer than a file: joint
-# values and poses, and what `log` gathers per entity, go out every BATCH seconds, one chunk per entity.
+# Rerun's web viewer takes in new data for about 10 ms per frame it draws: a browser that draws slowly
+# (software WebGL, a busy machine) takes in little a second. So the live stream batches longer than a file:
+# joint values and poses, and what `log` gathers per entity, go out every BATCH seconds, one chunk per
+# entity, and of the poses only each frame's newest (see the module's docstring).
 BATCH = 0.5  # s; a change is in the stream within this
 
 
@@ -47,13 +55,14 @@ def grpc_url(host: str, grpc_port: int) -> str:
 
 def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] = ("127.0.0.1", 9090),
         grpc_port: int = 9876, memory: str = MEMORY, refresh: int | None = REFRESH,
-        batch: float | None = BATCH) -> None:
+        batch: float | None = BATCH, every_pose: bool = False) -> None:
     """Process entry: serve the lab to a web viewer at `address` until `stop` is set. `memory`, `refresh`
-    (None: the current state is not logged again) and `batch` (None: as a recording file batches) are there for
-    the benchmark's baseline."""
+    (None: the current state is not logged again), `batch` (None: as a recording file batches) and `every_pose`
+    (True: every transform row sent, as a file keeps them) are there for the benchmark's baseline."""
     import rerun as rr
 
     from mesh.fabric.session import open_session
+    from mesh.recorder.live_rows import NewestTransforms
     from mesh.recorder.live_state import LiveState
     from mesh.recorder.logger import Recorder
     from mesh.recorder.scene_drawer import BATCH_AGE
@@ -63,7 +72,8 @@ def run(settings: MeshSettings, stop: threading.Event, address: tuple[str, int] 
     stream = rr.RecordingStream("twinmesh", batcher_config=batcher)
     stream.set_sinks(rr.GrpcServerSink(bind_ip=address[0], port=grpc_port, server_memory_limit=memory,
                                        newest_first=True))
-    rec = stream if refresh is None else LiveState(stream, refresh)
+    sent = stream if every_pose else NewestTransforms(stream)
+    rec = sent if refresh is None else LiveState(sent, refresh)
     viewer = ViewerServer(address, grpc_port)
     rec.send_recording_name(f"twinmesh {settings.prefix} live {time.strftime('%Y-%m-%d %H:%M:%S')}")
     with open_session(settings, service=True) as session, Recorder(session, settings, rec, batch or BATCH_AGE) as recorder:

@@ -156,7 +156,7 @@ def serve_old_view(endpoint: str, host: str, port: int, grpc_port: int) -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     run(MeshSettings(mode="client", connect=(endpoint,)), stop, (host, port), grpc_port, memory=OLD_MEMORY,
-        refresh=None, batch=None)
+        refresh=None, batch=None, every_pose=True)
 
 
 def chunk_rate(path: Path, top: int = 6) -> str:
