@@ -1,7 +1,7 @@
 """What makes Rerun's web viewer fall behind a live stream: a synthetic load, one factor at a time.
 
     python tests/bench/bench_viewer_capacity.py [--entities 8] [--rate 10] [--kind frames] [--plots 2]
-        [--window 60] [--triangles 100000] [--viewport 1280x800] [--busy] [--warm 45]
+        [--window 60] [--triangles 100000] [--viewport 1280x800] [--busy] [--newest] [--seconds 90]
     python tests/bench/bench_viewer_capacity.py --matrix [NAME ...]
 
 A logger process streams to `rr.GrpcServerSink` exactly as the live view does (`mesh.recorder.view`:
@@ -12,14 +12,15 @@ rows are: `scalars` (plotted when `--plots` > 0), `transforms` (an entity's own 
 (rows naming transform frames, six per entity, like the lab's `world/poses` and robot joints). The
 3D view also draws a static wall of `--triangles` triangles behind the clock. The blueprint is the
 lab's layout: the 3D view beside `--plots` time-series views of the last `--window` seconds.
+`--newest` sends what the live view sends since issue 50: each frame's newest row per flush.
 
-A headless Chromium (software WebGL, as in the browser tests) opens the page; after `--warm` seconds
-it measures the page's frame rate (requestAnimationFrame callbacks a second: the viewer takes in
-data for about 10 ms per frame it draws, so frames a second bound what it can take in) and, `--probes`
-times, the wall time from logging the probe box in a new colour to the first screenshot showing it
-(a page that is behind shows it late or never). `--busy` runs two CPU-bound processes beside it, as
-`.ci/busy` does. Each configuration prints one table row; figures on a shared 2-core machine are noisy
-(the browser's CPU seconds in the row say what share it got).
+A headless Chromium (software WebGL, as in the browser tests) opens the page and reads the logger's
+clock (three boxes whose colours change every `CLOCK_STEP`) from a screenshot every `--every` seconds
+for `--seconds`: how far behind the logger the page draws, over time. At the end it counts the page's
+frames a second (requestAnimationFrame callbacks: the viewer takes in data for about 10 ms per frame
+it draws, so frames a second bound what it can take in). `--busy` runs two CPU-bound processes beside
+it, as `.ci/busy` does. Each configuration prints one table row; figures on a shared 2-core machine
+are noisy (the browser's CPU in the row says what share it got).
 """
 from __future__ import annotations
 
@@ -66,6 +67,7 @@ class Load:
     triangles: int = 100_000
     viewport: str = "1280x800"
     busy: bool = False
+    newest: bool = False  # the live view's thinning: each frame's newest row per flush (`mesh.recorder.live_rows`)
 
     def label(self, base: "Load") -> str:
         changed = [f"{f.name}={getattr(self, f.name)}" for f in dataclasses.fields(self)
@@ -83,6 +85,7 @@ MATRIX = {  # one factor at a time from BASE
     "rows": [Load(rate=100.0)],
     "kind": [Load(kind="scalars")],
     "busy": [Load(busy=True)],
+    "newest": [Load(newest=True), Load(rate=100.0, newest=True), Load(entities=32, newest=True)],
 }
 
 
@@ -94,12 +97,14 @@ def serve(load: Load, port: int, grpc_port: int) -> None:
     import rerun as rr
     import rerun.blueprint as rrb
 
+    from mesh.recorder.live_rows import NewestTransforms
     from mesh.recorder.view import BATCH, MEMORY
     from mesh.recorder.web_viewer import ViewerServer, viewer_url
 
     stream = rr.RecordingStream("viewer-capacity", batcher_config=rr.ChunkBatcherConfig(flush_tick=BATCH))
     stream.set_sinks(rr.GrpcServerSink(bind_ip="127.0.0.1", port=grpc_port, server_memory_limit=MEMORY,
                                        newest_first=True))
+    sent = NewestTransforms(stream) if load.newest else stream
     viewer = ViewerServer(("127.0.0.1", port), grpc_port)
     lock = threading.Lock()
     recent = [rrb.VisibleTimeRange("time", start=rrb.TimeRangeBoundary.cursor_relative(seconds=-load.window),
@@ -138,7 +143,7 @@ def serve(load: Load, port: int, grpc_port: int) -> None:
         times = started - BATCH + (np.arange(rows) + 1) * BATCH / rows
         with lock:
             for i in range(load.entities):
-                _send(stream, load.kind, i, times, tick, load.plots)
+                _send(sent, load.kind, i, times, tick, load.plots)
         tick += 1
         time.sleep(max(0.0, started + BATCH - time.time()))
     viewer.close()
