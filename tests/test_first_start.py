@@ -187,7 +187,7 @@ def test_the_background_compile_runs_once_at_low_priority_holding_the_lock(monke
     cores.compile_in_background(types.ModuleType("dummy_compile"))  # run by name in the new process
     ran = cores.compiled_code_dir() / "ran.json"
     result = eventually(lambda: ran.exists() and json.loads(ran.read_text()), timeout=120, what="the compile's report")
-    assert result == {"niceness": os.nice(0) + cores.BACKGROUND_NICE, "held": True}
+    assert result == {"niceness": min(19, os.nice(0) + cores.BACKGROUND_NICE), "held": True}  # 19: the lowest
 
 
 def _samples(robot: Robot, share: float) -> Samples:

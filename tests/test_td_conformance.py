@@ -147,7 +147,7 @@ class Walk:
 
     def stream_opens(self, where: str, url: str) -> None:
         with self.http.stream("GET", url, headers={"Accept": "text/event-stream"},
-                              timeout=httpx.Timeout(10, read=PENDING)) as r:
+                              timeout=httpx.Timeout(30)) as r:  # the headers: no event is awaited
             if r.status_code != 200 or not r.headers.get("content-type", "").startswith("text/event-stream"):
                 self.wrong(where, f"SSE form answered {r.status_code} {r.headers.get('content-type')!r}")
         self.performed += 1

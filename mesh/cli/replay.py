@@ -30,13 +30,15 @@ def replay(path: str, port: int, grpc_port: int | None, bind: str, desktop: bool
         rrd = check_recording(path)
         if desktop:
             sys.exit(subprocess.run(desktop_command(rrd), env=rerun_env()).returncode)
+        # Ctrl-C and a service manager's stop (SIGTERM, SIGHUP) end the viewer; SIGUSR1 prints where it is stuck.
+        # Taken before the URL is printed: a script that reads the URL and stops it at once (its SIGINT ignored,
+        # as for `cmd &`) would otherwise lose the signal
+        stop = install_stop_handlers((signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
         web = WebReplay(rrd, bind, port, grpc_port or port + 1)
         proc, viewer = web.start()
     except (ReplayError, RepairError) as e:
         raise usage_exit(str(e)) from None
     click.echo(f"replaying {rrd} at {web.url}  (Ctrl-C to stop)")
-    # Ctrl-C and a service manager's stop (SIGTERM, SIGHUP) end the viewer; SIGUSR1 prints where it is stuck
-    stop = install_stop_handlers((signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
     threading.Thread(target=_set_when_ended, args=(proc, stop), name="rerun-ended", daemon=True).start()
     try:
         stop.wait()
