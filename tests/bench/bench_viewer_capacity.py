@@ -85,7 +85,7 @@ MATRIX = {  # one factor at a time from BASE
     "rows": [Load(rate=100.0)],
     "kind": [Load(kind="scalars")],
     "busy": [Load(busy=True)],
-    "newest": [Load(newest=True), Load(rate=100.0, newest=True), Load(entities=32, newest=True)],
+    "newest": [BASE, Load(newest=True), Load(rate=100.0, newest=True)],
 }
 
 
