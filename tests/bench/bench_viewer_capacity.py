@@ -68,6 +68,8 @@ class Load:
     viewport: str = "1280x800"
     busy: bool = False
     newest: bool = False  # the live view's thinning: each frame's newest row per flush (`mesh.recorder.live_rows`)
+    log_rows: int = 0  # log lines of the past hour sent first, and a log view (all of it: Rerun's has no time range)
+    log_rate: float = 0.0  # log lines a second
 
     def label(self, base: "Load") -> str:
         changed = [f"{f.name}={getattr(self, f.name)}" for f in dataclasses.fields(self)
@@ -86,6 +88,7 @@ MATRIX = {  # one factor at a time from BASE
     "kind": [Load(kind="scalars")],
     "busy": [Load(busy=True)],
     "newest": [BASE, Load(newest=True), Load(rate=100.0, newest=True)],
+    "log": [Load(newest=True, log_rate=3.0), Load(newest=True, log_rows=20_000, log_rate=3.0)],
 }
 
 
@@ -110,7 +113,8 @@ def serve(load: Load, port: int, grpc_port: int) -> None:
     recent = [rrb.VisibleTimeRange("time", start=rrb.TimeRangeBoundary.cursor_relative(seconds=-load.window),
                                    end=rrb.TimeRangeBoundary.cursor_relative())]
     plots = [rrb.TimeSeriesView(origin=f"/plots/{p}", time_ranges=recent) for p in range(load.plots)]
-    side = rrb.Vertical(*plots) if plots else rrb.TextLogView(origin="/log")
+    logs = [rrb.TextLogView(origin="/", name="log")] if load.log_rows or load.log_rate else []
+    side = rrb.Vertical(*plots, *logs) if plots or logs else rrb.TextLogView(origin="/log")
     eye = rrb.EyeControls3D(position=(-2.5, -2.5, 1.5), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0))
     stream.send_blueprint(rrb.Blueprint(
         rrb.Horizontal(rrb.Spatial3DView(origin="/scene", eye_controls=eye), side, column_shares=[3, 2]),
@@ -124,6 +128,10 @@ def serve(load: Load, port: int, grpc_port: int) -> None:
         elif load.kind == "frames":
             for f in range(FRAMES_PER_ENTITY):
                 stream.log(f"/scene/bodies/{i}/{f}", _small_box(), rr.CoordinateFrame(f"body_{i}_{f}"), static=True)
+    if load.log_rows:
+        past = time.time() - 3600 + np.arange(load.log_rows) * 3600 / load.log_rows
+        stream.send_columns("/things/log", [rr.TimeColumn("time", timestamp=past)],
+                            rr.TextLog.columns(text=[f"line {k}: detectColor cube-red" for k in range(load.log_rows)]))
     print(f"serving {viewer_url('127.0.0.1', port, grpc_port)}", flush=True)
 
     def clock() -> None:
@@ -144,6 +152,10 @@ def serve(load: Load, port: int, grpc_port: int) -> None:
         with lock:
             for i in range(load.entities):
                 _send(sent, load.kind, i, times, tick, load.plots)
+            lines = int((tick + 1) * load.log_rate * BATCH) - int(tick * load.log_rate * BATCH)
+            for k in range(lines):
+                stream.set_time("time", timestamp=started)
+                stream.log(f"/things/log{k % 3}", rr.TextLog(f"tick {tick}: returnCube() in 1.34 s"))
         tick += 1
         time.sleep(max(0.0, started + BATCH - time.time()))
     viewer.close()
