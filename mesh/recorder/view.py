@@ -14,13 +14,15 @@ bytes have been logged behind it, so that newest part always holds the whole cur
 late viewer has little history to take in before it is current. The `.rrd` file of `--record` is
 a separate recorder and keeps everything.
 
-What a browser can take in is the limit of a live view, and it is transform rows (poses placing a
-frame), not chunks, plots or the scene's size: the viewer takes in data for a few milliseconds of
-each frame it draws, a transform row costs it far more than a scalar, and a browser drawing a few
-frames a second (software WebGL, a loaded machine; a bigger window draws fewer) fell minutes behind
-a `--speed max` lab's every pose (`tests/bench/bench_viewer_capacity.py`, one factor at a time). So
-the stream sends each frame's newest pose per `BATCH` only (`mesh.recorder.live_rows`): nobody sees
-the poses in between, and the view shows where everything is now. Plots keep every sample.
+What a browser can take in is the limit of a live view. Rerun's web viewer takes in data for about
+10 ms of each frame it draws, and a browser without a GPU draws a few frames a second or fewer (its
+software renderer needs most of a core for a page; a bigger window, or a machine whose cores the lab
+itself keeps busy, draws fewer). Of what the lab sends, transform rows (poses placing a frame) cost
+it most: as many chunks of scalars kept up where those of many poses fell minutes behind; the plots
+and the scene's size did not decide it (`tests/bench/bench_viewer_capacity.py`, one factor at a
+time). So the stream sends each frame's newest pose per `BATCH` only (`mesh.recorder.live_rows`):
+nobody sees the poses in between, and the view shows where everything is now. Plots keep every
+sample. A page whose browser gets too little of the machine still falls behind a busy lab.
 
 The stream is served on the view's own host (127.0.0.1 unless `twinmesh up --view HOST:PORT` names
 another): Rerun's own default would be every interface.
