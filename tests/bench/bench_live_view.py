@@ -14,7 +14,7 @@ busy (the cube workflow over and over), and measures in headless Chromium (softw
 - **late viewer**: the lamp is left magenta, the lab runs on for `minutes` (counted from the start),
   then a new page: the time from opening it until the room is drawn and until the lamp's magenta is
   shown (the current state). Baseline, same lab, same minute: a second view process with the settings
-  before (16 MiB of history, the current state not logged again), opened the same way;
+  before (16 MiB of history, the current state not logged again, every pose sent), opened the same way;
 - **recorder**: CPU seconds and resident memory of the lab's `recorder` (the `.rrd` file) and `view`
   (live view) processes over the measured window, scaled to one hour, and the recording's size;
 - **chunks**: the recording's chunks over time per second and its busiest entities (Rerun's web viewer
