@@ -4,6 +4,7 @@ The command's refusals run without a browser; the replay itself is checked over 
 policy, the stream's port on loopback only) and then in headless Chromium: the recording drawn as
 it was recorded, no Rerun error on the console, no request to any other host.
 """
+import contextlib
 import os
 import signal
 import subprocess
@@ -13,6 +14,7 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 from labs import REPO, free_port
 from rerun_view import colour_share, viewer_page
@@ -108,8 +110,11 @@ class Replaying:
             try:
                 eventually(lambda: "Thread 0x" in self.log.read_text(errors="replace"), timeout=10,
                            what="its threads' stacks in its log")
-            finally:
-                self.proc.kill()
+            finally:  # the replay and the viewer's server it started in a session of its own: none left behind
+                for process in [*psutil.Process(self.proc.pid).children(recursive=True), self.proc]:
+                    with contextlib.suppress(psutil.Error, ProcessLookupError):
+                        process.kill()
+                self.proc.wait()
             raise AssertionError("twinmesh replay did not stop within 30 s of Ctrl-C:\n"
                                  + self.log.read_text(errors="replace")[-6000:]) from None
 
