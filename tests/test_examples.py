@@ -119,7 +119,7 @@ def test_the_workbench_scene_gives_a_td_offline_and_check_judges_targets_on_it(t
     line each (few samples and the exact model here: no compile on first use)."""
     out = tmp_path / "ur10"
     made = _run(["twinmesh", "tdgen", "ur10.urdf", "--scene", str(EXAMPLES / "scenes" / "workbench.json"),
-                 "--samples", "3000", "--collision-model", "exact", "--out", str(out)], timeout=900)
+                 "--samples", "1000", "--collision-model", "exact", "--out", str(out)], timeout=900)
     assert made.returncode == 0, made.stderr
     scene = json.loads((out / "scene.json").read_text())
     assert {"bench", "crate", "bin", "wall"} <= {body.get("name") for body in scene["bodies"]}
