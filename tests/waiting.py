@@ -64,3 +64,13 @@ def subscribed(session, key: str, timeout: float = 60.0) -> None:
     finally:
         listener.undeclare()
         publisher.undeclare()
+
+
+def seconds_until(check: Callable[[], object], limit: float) -> float | None:
+    """Seconds until `check()` holds, asked again at once (a benchmark's figure, whose checks take their own
+    time: a screenshot); None when it does not hold within `limit`."""
+    started = time.perf_counter()
+    while not check():
+        if time.perf_counter() - started > limit:
+            return None
+    return time.perf_counter() - started

@@ -45,6 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs, re
 
 from labs import free_port, start_lab, stop_process  # noqa: E402
 from rerun_view import colour_share, room_drawn, viewer_page  # noqa: E402
+from waiting import seconds_until  # noqa: E402
 
 from recordings import wait_for_line  # noqa: E402
 
@@ -56,15 +57,6 @@ OLD_MEMORY = "16MiB"  # the view's history before (mesh.recorder.view.MEMORY), t
 
 def shown(pixels, rgb) -> bool:
     return colour_share(pixels, rgb) * pixels.shape[0] * pixels.shape[1] >= 20
-
-
-def until(check, limit: float) -> float | None:
-    """Seconds until `check()` holds; None when it does not within `limit`."""
-    started = time.perf_counter()
-    while not check():
-        if time.perf_counter() - started > limit:
-            return None
-    return time.perf_counter() - started
 
 
 def put_colour(http: str, colour: list[float]) -> None:
@@ -89,7 +81,7 @@ def colour_delays(http: str, view, changes: int, start: int) -> tuple[list[float
         name = ("magenta", "cyan")[k % 2]
         rgb, value = COLOURS[name]
         put_colour(http, value)
-        delay = until(lambda: shown(page(), rgb), SHOWN_LIMIT)
+        delay = seconds_until(lambda: shown(page(), rgb), SHOWN_LIMIT)
         if delay is None:  # a viewer this far behind does not catch up: the rounds end here
             shot = Path(tempfile.gettempdir()) / "bench-live-view-behind.png"
             view.save(shot)
@@ -108,8 +100,8 @@ def current_after(view, limit: float) -> tuple[float | None, float | None]:
     """A page just opened: (seconds until the room is drawn, until the lamp's magenta is shown), None:
     not within `limit`."""
     opened = time.perf_counter()
-    drawn = until(lambda: room_drawn(view.pixels()), limit)
-    current = until(lambda: shown(view.view_pixels(), COLOURS["magenta"][0]), limit)
+    drawn = seconds_until(lambda: room_drawn(view.pixels()), limit)
+    current = seconds_until(lambda: shown(view.view_pixels(), COLOURS["magenta"][0]), limit)
     return drawn, None if current is None else time.perf_counter() - opened
 
 
@@ -218,7 +210,7 @@ def main(minutes: float, changes: int, baseline: bool, keep: bool) -> None:
         started = time.monotonic()
         threading.Thread(target=busy, args=(lab, stop), daemon=True).start()
         with viewer_page(url) as view:
-            first_drawn = until(lambda: room_drawn(view.pixels()), DRAWN_LIMIT)
+            first_drawn = seconds_until(lambda: room_drawn(view.pixels()), DRAWN_LIMIT)
             if first_drawn is None:
                 raise SystemExit(f"the room not drawn in the first viewer within {DRAWN_LIMIT:.0f} s")
             first, first_shots = colour_delays(lab.http, view, changes, 1)

@@ -38,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs, re
 
 from browser import chromium  # noqa: E402
 from rerun_view import ViewerPage  # noqa: E402
+from waiting import seconds_until  # noqa: E402
 
 # The logger's clock: three boxes in three of six pure colours (channels 0 or 1: the view's shading keeps
 # their hue), a permutation a CLOCK_STEP; a screenshot's permutation says which moment the page shows.
@@ -247,7 +248,7 @@ def measure(load: Load, seconds: float, every: float) -> dict:
         with chromium() as browser_app:
             view = ViewerPage(browser_app.new_page(viewport={"width": w, "height": h}), url)  # type: ignore[attr-defined]
             opened = time.perf_counter()
-            first = _until(lambda: lag(view) is not None, 300.0)
+            first = seconds_until(lambda: lag(view) is not None, 300.0)
             browser = [p for p in psutil.Process().children(recursive=True) if "chrom" in p.name()]
             cpu0, logger0 = _cpu(browser), _cpu([psutil.Process(proc.pid)])
             lags: list[tuple[float, float | None]] = []
@@ -288,12 +289,6 @@ def unwrap(lags: list[tuple[float, float | None]]) -> list[tuple[float, float | 
     return out
 
 
-def _until(check, limit: float) -> float | None:
-    started = time.perf_counter()
-    while not check():
-        if time.perf_counter() - started > limit:
-            return None
-    return time.perf_counter() - started
 
 
 def _cpu(processes) -> float:
