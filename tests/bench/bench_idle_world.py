@@ -13,7 +13,19 @@ from __future__ import annotations
 
 import argparse
 import os
+import threading
 import time
+
+
+def until(world, condition, timeout: float) -> bool:
+    """Wait until `condition()` holds at one of the world's snapshots (every 1/30 s of simulated time, on
+    its notifier thread: nothing polls in this process); False after `timeout` s."""
+    held = threading.Event()
+    unsubscribe = world.on_snapshot(lambda snap: held.set() if condition() else None)
+    try:
+        return held.wait(timeout)
+    finally:
+        unsubscribe()
 
 
 def measure(build, rest: bool, seconds: float) -> tuple[float, float, float]:
@@ -23,14 +35,13 @@ def measure(build, rest: bool, seconds: float) -> tuple[float, float, float]:
     world.rest = rest
     try:
         if rest:
-            deadline = time.monotonic() + 30
-            while not world.resting and time.monotonic() < deadline:
-                time.sleep(0.1)
-            assert world.resting, "the idle world did not come to rest within 30 s"
-        else:
-            time.sleep(2.0)  # settled as the other: its start-up is not measured
+            assert until(world, lambda: world.resting, 30), "the idle world did not come to rest within 30 s"
+        else:  # settled as the other: 2 s of simulated time, its start-up not measured
+            start = world.time
+            assert until(world, lambda: world.time >= start + 2.0, 30), "the world did not step"
         cpu, steps, physics, wall = time.process_time(), world.steps, world.physics_steps, time.monotonic()
-        time.sleep(seconds)
+        start = world.time  # idle, the world runs in real time: `seconds` of it are as many on the wall clock
+        assert until(world, lambda: world.time >= start + seconds, 3 * seconds), "the world did not step"
         wall = time.monotonic() - wall
         return (100 * (time.process_time() - cpu) / wall, (world.steps - steps) / wall,
                 (world.physics_steps - physics) / wall)

@@ -101,10 +101,12 @@ def serve(load: Load, port: int, grpc_port: int) -> None:
     import rerun as rr
     import rerun.blueprint as rrb
 
+    from mesh.process import install_stop_handlers
     from mesh.recorder.live_rows import NewestTransforms
     from mesh.recorder.view import BATCH, MEMORY
     from mesh.recorder.web_viewer import ViewerServer, viewer_url
 
+    stop = install_stop_handlers()  # the bench's Ctrl-C (stop_process) ends the logger's loops below
     stream = rr.RecordingStream("viewer-capacity", batcher_config=rr.ChunkBatcherConfig(flush_tick=BATCH))
     stream.set_sinks(rr.GrpcServerSink(bind_ip="127.0.0.1", port=grpc_port, server_memory_limit=MEMORY,
                                        newest_first=True))
@@ -136,18 +138,18 @@ def serve(load: Load, port: int, grpc_port: int) -> None:
     print(f"serving {viewer_url('127.0.0.1', port, grpc_port)}", flush=True)
 
     def clock() -> None:
-        while True:
+        while not stop.is_set():
             now = time.time()
             with lock:
                 stream.set_time("time", timestamp=now)
                 stream.log("/scene/clock", rr.Boxes3D(centers=CLOCK_AT, half_sizes=[[0.2] * 3] * 3,
                                                       colors=clock_colours(now), fill_mode="solid"))
-            time.sleep(CLOCK_STEP - now % CLOCK_STEP)
+            stop.wait(CLOCK_STEP - now % CLOCK_STEP)  # the clock's next step, or the stop
 
     threading.Thread(target=clock, daemon=True).start()
     rows = max(1, round(load.rate * BATCH))
     tick = 0
-    while True:
+    while not stop.is_set():
         started = time.time()
         times = started - BATCH + (np.arange(rows) + 1) * BATCH / rows
         with lock:
@@ -158,7 +160,7 @@ def serve(load: Load, port: int, grpc_port: int) -> None:
                 stream.set_time("time", timestamp=started)
                 stream.log(f"/things/log{k % 3}", rr.TextLog(f"tick {tick}: returnCube() in 1.34 s"))
         tick += 1
-        time.sleep(max(0.0, started + BATCH - time.time()))
+        stop.wait(max(0.0, started + BATCH - time.time()))  # the next batch, or the stop
     viewer.close()
 
 
@@ -252,8 +254,11 @@ def measure(load: Load, seconds: float, every: float) -> dict:
             browser = [p for p in psutil.Process().children(recursive=True) if "chrom" in p.name()]
             cpu0, logger0 = _cpu(browser), _cpu([psutil.Process(proc.pid)])
             lags: list[tuple[float, float | None]] = []
+            ended = threading.Event()  # the logger gone: no sample would mean anything
+            threading.Thread(target=lambda: (proc.wait(), ended.set()), daemon=True).start()
             while time.perf_counter() - opened < seconds:
-                time.sleep(max(0.0, every - (time.perf_counter() - opened) % every))
+                if ended.wait(max(0.0, every - (time.perf_counter() - opened) % every)):
+                    raise RuntimeError(f"the logger exited ({proc.returncode}) while the page was sampled")
                 lags.append((time.perf_counter() - opened, lag(view)))
             fps = view.page.evaluate(FPS_SCRIPT)
             window = time.perf_counter() - opened - (first or 0.0)
