@@ -82,7 +82,6 @@ class KinematicArm:
                                      forces=[0.0] * len(self._movable), physicsClientId=client)
         self.q = np.zeros(len(self.main))
         self.extra: dict[str, float] = {}
-        self._targets: list[tuple[int, float]] = []
         self._hold_joints: list[int] = []
         self._hold_values: list[list[float]] = []
         if world is not None:
@@ -112,7 +111,6 @@ class KinematicArm:
         if self._compensation is not None:
             targets += zip(self._passive_idx, map(float, self._compensation(self.q[None])[0]))
         targets += [(self.joint_index[n], v) for n, v in self.extra.items()]
-        self._targets = targets
         self._hold_joints = [i for i, _ in targets]
         self._hold_values = [[v] for _, v in targets]
 

@@ -53,17 +53,18 @@ def check_glb_alone(path: Path) -> None:
     must hold its buffers and images itself (the specification lets it name files; a consumer on another host
     would get none of them)."""
     try:
-        data = path.read_bytes()
+        with path.open("rb") as f:  # the header and the JSON chunk only: the binary chunk may be large
+            head = f.read(20)
+            if len(head) < 20:
+                return  # too short for a JSON chunk: the mesh reader says what is wrong with it
+            magic, _, _, length, kind = struct.unpack("<IIIII", head)
+            if magic != _MAGIC or kind != _JSON:
+                return
+            chunk = f.read(length)
     except OSError as e:
         raise SceneError(f"{path}: cannot read the file ({e.strerror})") from None
-    if len(data) < 20:
-        return  # too short for a JSON chunk: the mesh reader says what is wrong with it
-    magic, _, _ = struct.unpack_from("<III", data, 0)
-    length, kind = struct.unpack_from("<II", data, 12)
-    if magic != _MAGIC or kind != _JSON:
-        return
     try:
-        gltf = json.loads(data[20:20 + length].decode("utf-8"))
+        gltf = json.loads(chunk.decode("utf-8"))
     except ValueError:
         return
     named = [uri for uri in _uris(gltf) if not uri.startswith("data:")] if isinstance(gltf, dict) else []
