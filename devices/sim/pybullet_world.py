@@ -456,42 +456,27 @@ class World:
         if self._resting is not None or self._time + 1e-9 < self._next_check:
             return
         self._next_check = self._time + REST_CHECK
-        self._still_for = self._still_for + REST_CHECK if self._still() else 0.0
+        state = self._physical_state()
+        self._still_for = self._still_for + REST_CHECK if _still(state) else 0.0
         if self._still_for + 1e-9 >= REST_AFTER:
-            self._resting = self._physical_state()
+            self._resting = state
 
     def _wake_physics(self) -> None:
         self._resting, self._still_for = None, 0.0
         self._next_check = self._time + REST_CHECK
 
-    def _bodies(self) -> list[int]:
-        c = self.client
-        return [pb.getBodyUniqueId(i, physicsClientId=c) for i in range(pb.getNumBodies(physicsClientId=c))]
-
-    def _still(self) -> bool:
-        """Every body and joint moves slower than STILL_LINEAR / STILL_ANGULAR."""
-        c = self.client
-        for body in self._bodies():
-            linear, angular = pb.getBaseVelocity(body, physicsClientId=c)
-            if max(map(abs, linear)) > STILL_LINEAR or max(map(abs, angular)) > STILL_ANGULAR:
-                return False
-            joints = pb.getNumJoints(body, physicsClientId=c)
-            if joints and any(abs(state[1]) > STILL_ANGULAR
-                              for state in pb.getJointStates(body, range(joints), physicsClientId=c)):
-                return False
-        return True
-
     def _physical_state(self) -> tuple:
-        """Every body's pose and velocity and every joint's position and velocity: what a command that
-        changes the physics changes."""
+        """Per body: its id, pose, velocity (linear, angular) and its joints' (position, velocity): what a
+        command that changes the physics changes, and what says whether anything moves (`_still`)."""
         c = self.client
-        state: list = []
-        for body in self._bodies():
-            state.append((body, pb.getBasePositionAndOrientation(body, physicsClientId=c),
-                          pb.getBaseVelocity(body, physicsClientId=c)))
+        state = []
+        for i in range(pb.getNumBodies(physicsClientId=c)):
+            body = pb.getBodyUniqueId(i, physicsClientId=c)
             joints = pb.getNumJoints(body, physicsClientId=c)
-            if joints:
-                state.append(tuple(s[:2] for s in pb.getJointStates(body, range(joints), physicsClientId=c)))
+            state.append((body, pb.getBasePositionAndOrientation(body, physicsClientId=c),
+                          pb.getBaseVelocity(body, physicsClientId=c),
+                          tuple(j[:2] for j in pb.getJointStates(body, range(joints), physicsClientId=c))
+                          if joints else ()))
         return tuple(state)
 
     def _step(self) -> None:
@@ -546,6 +531,16 @@ class World:
     def _notify_loop(self) -> None:
         while (item := self._notes.get()) is not None:
             _call_logged(*item)
+
+
+def _still(state: tuple) -> bool:
+    """Every body and joint of a `World._physical_state` moves slower than STILL_LINEAR / STILL_ANGULAR."""
+    for _, _, (linear, angular), joints in state:
+        if max(map(abs, linear)) > STILL_LINEAR or max(map(abs, angular)) > STILL_ANGULAR:
+            return False
+        if any(abs(velocity) > STILL_ANGULAR for _, velocity in joints):
+            return False
+    return True
 
 
 def _settle(fut: Future, fn: Callable[[], Any]) -> None:
