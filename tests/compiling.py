@@ -1,10 +1,11 @@
 """Code that runs uncompiled in tests that are not about compiling.
 
-numba keeps compiled code per source path, so twinmesh installed elsewhere (a wheel in a fresh venv, an
-edited copy of the code) would compile its loops again in every process that runs them, minutes of CPU
-that prove nothing about what such a test checks. Given an empty compiled-code folder and the lock a
-background compile takes held here, such processes run what a first start runs before its compile is
-done (pybullet's exact test, numpy), and start no compile of their own that would outlive the test.
+Our compiled code is kept by what our compiled modules hold (`tdgen/robot/numba_locator.py`): a wheel in a
+fresh venv loads this machine's compile only once that compile is done, and an edited copy of a compiled
+module would compile its loops again, minutes of CPU that prove nothing about what such a test checks.
+Given an empty compiled-code folder and the lock a background compile takes held here, such processes run
+what a first start runs before its compile is done (pybullet's exact test, numpy), whatever the machine's
+compile state, and start no compile of their own that would outlive the test.
 The compile itself is tested in tests/test_first_start.py.
 """
 from __future__ import annotations

@@ -42,7 +42,8 @@ print(json.dumps({"tdgen": str(default_cache_dir()), "secrets": str(default_secr
 
 def _where(env: dict[str, str]) -> dict[str, str]:
     clean = {k: v for k, v in os.environ.items()
-             if k not in ("TWINMESH_CACHE", "TWINMESH_SECRETS", "NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "XDG_DATA_HOME")}
+             if k not in ("TWINMESH_CACHE", "TWINMESH_SECRETS", "NUMBA_CACHE_DIR", "NUMBA_CACHE_LOCATOR_CLASSES",
+                          "XDG_CACHE_HOME", "XDG_DATA_HOME")}
     out = subprocess.run([sys.executable, "-c", WHERE], env={**clean, **env}, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -62,10 +63,10 @@ def test_twinmesh_cache_and_numba_cache_dir_still_win(tmp_path):
     assert where["numba"] == str(tmp_path / "numba")
 
 
-def test_the_same_code_in_another_place_compiles_afresh(monkeypatch, tmp_path):
-    """numba keeps compiled code per source folder: a second install (another venv, a fresh clone) has none
-    of it, so it must not take the first one's stamp for its own (its every process would then compile the
-    kernel itself, a minute of CPU each, instead of one compile in the background)."""
+def test_the_same_code_in_another_place_finds_it_compiled_and_edited_code_compiles_afresh(monkeypatch, tmp_path):
+    """Our compiled code is kept by what our compiled modules hold (`numba_locator`): a second install of the
+    same version (another venv, a fresh clone) takes the first one's compile for its own; a copy with a
+    compiled module edited does not (its every process would run stale code)."""
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
     copy_dir = tmp_path / "elsewhere" / "robot"
     copy_dir.mkdir(parents=True)
@@ -75,12 +76,48 @@ def test_the_same_code_in_another_place_compiles_afresh(monkeypatch, tmp_path):
     elsewhere = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(elsewhere)
     monkeypatch.setattr(cores, "_compiling_here", threading.Event())  # not this process's compile, whatever ran
+    assert not cores.compiled() and not elsewhere.compiled()
     cores.compiled_stamp().parent.mkdir(parents=True)
     cores.compiled_stamp().touch()  # compiled here
-    assert cores.compiled()
-    assert not elsewhere.compiled(), "the copy took the compile of the code it was copied from for its own"
-    elsewhere.compiled_stamp().touch()
-    assert elsewhere.compiled()
+    assert cores.compiled() and elsewhere.compiled(), "the same code elsewhere did not find its compile"
+    kernel = copy_dir / "sphere_kernel.py"
+    kernel.write_text(kernel.read_text() + "\n# edited\n")
+    elsewhere.sources_hash.cache_clear()
+    assert not elsewhere.compiled(), "an edited copy took the compile of the code it was copied from"
+
+
+SECOND_INSTALL = """
+import json, sys
+import tdgen
+from tdgen.robot import fast_collision, kinematics, points_csv, sphere_kernel
+assert tdgen.__file__.startswith(sys.argv[1]), tdgen.__file__
+fast_collision.compile_all()  # what the background compile runs: every compiled function, compiled or loaded
+stats = {f"{m.__name__}.{name}": [sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values())]
+         for m in (sphere_kernel, points_csv, kinematics) for name, f in vars(m).items()
+         if hasattr(f, "stats") and f.signatures}
+print(json.dumps(stats))
+"""
+
+
+def test_a_second_install_of_the_same_code_loads_the_machines_compiled_code(compiled_code, tmp_path):
+    """A fresh clone (the code copied elsewhere) runs everything a lab compiles from what this install
+    compiled: every function from the cache, none compiled again, no folder of its own in the cache."""
+    import hashlib
+    import shutil
+
+    from labs import REPO
+
+    copy = tmp_path / "clone"
+    for package in ("mesh", "tdgen"):
+        shutil.copytree(REPO / package, copy / package, ignore=shutil.ignore_patterns("__pycache__"))
+    done = subprocess.run([sys.executable, "-c", SECOND_INSTALL, str(copy)], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(copy)}, cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    stats = json.loads(done.stdout.strip().splitlines()[-1])
+    assert len(stats) >= 5, stats
+    assert all(hits > 0 and misses == 0 for hits, misses in stats.values()), stats
+    own = f"robot_{hashlib.sha1(str(copy / 'tdgen' / 'robot').encode()).hexdigest()}"  # numba's own name for it
+    assert not (cores.compiled_code_dir() / own).exists()
 
 
 def test_a_machine_without_the_compiled_model_gets_the_same_workspace_without_waiting_for_it(monkeypatch):

@@ -268,7 +268,7 @@ def test_a_cached_td_is_used_only_while_the_code_that_made_it_is_the_same(tmp_pa
 
     first, again = run(REPO), run(REPO)
     assert not first["cached"] and again["cached"] and again["key"] == first["key"]
-    with compiling_elsewhere(tmp_path / "numba") as uncompiled:  # the copy's loops compiled again: not the point
+    with compiling_elsewhere(tmp_path / "numba") as uncompiled:  # uncompiled, whatever was compiled: not the point
         fresh = run(edited, uncompiled)
     assert not fresh["cached"] and fresh["key"] != first["key"]
     assert "an edited twinmesh tdgen" in fresh["description"] and "an edited" not in first["description"]

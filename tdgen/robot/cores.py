@@ -6,7 +6,8 @@ here (the sphere model's verdicts, points.csv's formatting) runs under `LAUNCH`.
 
 numba keeps what it compiled beside the sources unless told otherwise: inside site-packages, which
 may be read-only and is not the user's. Our compiled code is kept in the user's cache directory
-instead (`user_cache`, beside tdgen's artefacts), so a machine compiles once whatever installed us.
+instead (`user_cache`, beside tdgen's artefacts), in a folder named after what our compiled modules
+hold (`numba_locator`), so a machine compiles each version of our code once, whatever installed it.
 numba reads where when it is imported and each compiled function when it is defined, so every module
 of ours takes `njit` and `prange` from here: the one place that says where, before numba is imported.
 """
@@ -37,13 +38,21 @@ def compiled_code_dir() -> Path:
     return Path(os.environ.get("NUMBA_CACHE_DIR") or user_cache() / "numba")
 
 
+# numba's own locators after ours, in numba's order: ours places only our compiled modules
+LOCATORS = ("tdgen.robot.numba_locator.ByContentLocator,UserProvidedCacheLocator,InTreeCacheLocator,"
+            "UserWideCacheLocator,IPythonCacheLocator,ZipCacheLocator")
+
+
 def _keep_compiled_code() -> None:
-    """numba's cache in `compiled_code_dir()`, for this process and those it starts."""
+    """numba's cache in `compiled_code_dir()`, our modules' by their contents (unless the user chose numba's
+    locators), for this process and those it starts."""
     os.environ["NUMBA_CACHE_DIR"] = str(compiled_code_dir())
+    os.environ.setdefault("NUMBA_CACHE_LOCATOR_CLASSES", LOCATORS)
     if "numba" in sys.modules:  # imported before us (by a user's script): none of our functions defined yet
         from numba.core import config
 
         config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]  # type: ignore[attr-defined]
+        config.CACHE_LOCATOR_CLASSES = os.environ["NUMBA_CACHE_LOCATOR_CLASSES"]  # type: ignore[attr-defined]
 
 
 _keep_compiled_code()
@@ -66,26 +75,30 @@ COMPILED_MODULES = ("sphere_kernel.py", "points_csv.py", "kinematics.py")  # our
 
 
 def compiled_stamp() -> Path:
-    """The file `fast_collision.compile_all` writes once it has compiled everything, named after what numba's
-    cache is valid for: our compiled modules' folder (numba keeps compiled code per source folder) and what
-    they hold, numba, Python and the machine. A new version, the same code in another place (a second venv,
-    a fresh clone: nothing compiled for it yet, whatever the first one compiled), or another machine sharing
-    the home directory compiles afresh."""
-    return compiled_code_dir() / f"twinmesh-compiled-{_sources_hash()}"
+    """The file `fast_collision.compile_all` writes once it has compiled everything, named after what the
+    compiled code is valid for (`sources_hash`). The same code installed elsewhere (a second venv, a fresh
+    clone) finds it compiled; a new version, or another machine sharing the home directory, compiles afresh."""
+    return compiled_code_dir() / f"twinmesh-compiled-{sources_hash()}"
 
 
 @functools.cache
-def _sources_hash() -> str:
+def sources_hash() -> str:
+    """What our compiled modules hold, with numba's version, Python's and the machine's: the name of the folder
+    numba keeps their compiled code in (`numba_locator`) and of the stamp that says it is complete."""
     import hashlib
     import platform
     from importlib.metadata import version
 
     h = hashlib.sha256(f"{version('numba')} {sys.version} {platform.machine()}".encode())
-    folder = os.path.abspath(Path(__file__).parent)  # as numba names it: no symlink resolved
-    h.update(folder.encode())
     for name in COMPILED_MODULES:
-        h.update((Path(folder) / name).read_bytes())
+        h.update((Path(__file__).parent / name).read_bytes())
     return h.hexdigest()[:16]
+
+
+def is_compiled_module(py_file: str) -> bool:
+    """Is `py_file` one of our compiled modules (`COMPILED_MODULES`, beside this file)?"""
+    path = Path(os.path.abspath(py_file))
+    return path.parent == Path(os.path.abspath(__file__)).parent and path.name in COMPILED_MODULES
 
 
 def compiled() -> bool:
