@@ -286,6 +286,8 @@ def test_on_the_mesh_move_to_answers_when_there_with_the_final_position_publishe
             client.invoke("pan-tilt-1", "panContinuously", 16)
         assert err.value.status == 400
         assert client.invoke("pan-tilt-1", "panContinuously", -15) is None
+        while positions.get(timeout=5) >= RED_AT:  # the head turns
+            pass
         assert client.invoke("pan-tilt-1", "stopMovement") is None
         stopped = client.read("pan-tilt-1", "panPosition")
         assert -90 <= stopped < RED_AT

@@ -421,8 +421,8 @@ class World:
                     if self._wake.wait(min(left, 0.25)):  # short waits: no timeout ever overflows
                         self._wake.clear()
                         self._run_commands()
-                        if self._resting is None:
-                            until = min(until, next_wall)  # woken: one step at a time again
+                        if self._resting is None or not self.idle():
+                            until = min(until, next_wall)  # woken, or a motion added: one step at a time again
                         if self._speed is None and not self.idle():
                             break  # a motion started: full speed from now on
         except BaseException as exc:  # a broken world must not leave callers waiting forever
