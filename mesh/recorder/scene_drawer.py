@@ -407,7 +407,7 @@ def body_shape(body: Body, with_colour: bool = True) -> rr.Boxes3D | rr.Cylinder
 
 
 def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing_robots: dict[str, Pose],
-                  own_worlds: dict[str, Pose] | None = None):
+                  own_worlds: dict[str, Pose] | None = None, plots: bool = True, log: bool = True):
     """How a recording of a lab opens: the lab in 3D, each robot simulated apart in its own 3D tab, joint
     plots per robot, states, the log, the time cursor following the latest data. The live view sends the
     same blueprint, so a replay looks the same. Each plot shows the last `PLOT_WINDOW` seconds before the
@@ -419,6 +419,7 @@ def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing
     and shown in a second 3D tab, `workspaces`. `own_worlds` are the robot Things simulated in their
     own world (name -> base pose in it): one tab each, its origin the robot's own root `robots/<r>`,
     with its scene and workspace. The time panel opens on `sim_time` when a world runs, else `time`.
+    `plots` and `log` (False: that part left out) are there for the viewer benchmarks.
     """
     import rerun.blueprint as rrb
 
@@ -450,9 +451,10 @@ def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing
                for r in [*thing_robots, *own]]
     values = rrb.Tabs(rrb.TimeSeriesView(origin=f"/{WORLD}/states", name="device states", time_ranges=recent),
                       rrb.TimeSeriesView(origin="/things", name="properties", time_ranges=recent))
-    log = rrb.TextLogView(origin="/", name="log")
-    side = rrb.Vertical(rrb.Tabs(*joints), values, log) if joints else rrb.Vertical(values, log)
-    return rrb.Blueprint(rrb.Horizontal(main, side, column_shares=[3, 2]),
+    side_views = ([rrb.Tabs(*joints)] if joints else []) + [values] if plots else []
+    side_views += [rrb.TextLogView(origin="/", name="log")] if log else []
+    layout = rrb.Horizontal(main, rrb.Vertical(*side_views), column_shares=[3, 2]) if side_views else main
+    return rrb.Blueprint(layout,
                          rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
                          rrb.TimePanel(timeline="sim_time" if scene is not None else "time", state="collapsed",
                                        play_state="following"))
