@@ -451,7 +451,8 @@ def lab_blueprint(scene: SceneDescription | None, world_robots: list[str], thing
                for r in [*thing_robots, *own]]
     values = rrb.Tabs(rrb.TimeSeriesView(origin=f"/{WORLD}/states", name="device states", time_ranges=recent),
                       rrb.TimeSeriesView(origin="/things", name="properties", time_ranges=recent))
-    side_views = ([rrb.Tabs(*joints)] if joints else []) + [values] if plots else []
+    side_views: list[rrb.Tabs | rrb.TextLogView] = []
+    side_views += ([rrb.Tabs(*joints)] if joints else []) + [values] if plots else []
     side_views += [rrb.TextLogView(origin="/", name="log")] if log else []
     layout = rrb.Horizontal(main, rrb.Vertical(*side_views), column_shares=[3, 2]) if side_views else main
     return rrb.Blueprint(layout,

@@ -24,6 +24,14 @@ time). So the stream sends each frame's newest pose per `BATCH` only (`mesh.reco
 nobody sees the poses in between, and the view shows where everything is now. Plots keep every
 sample. A page whose browser gets too little of the machine still falls behind a busy lab.
 
+What sets the frames such a browser draws is the size of its window, not what the lab sends nor the
+layout: once data arrives every batch the viewer draws every frame anew, and a software renderer's
+frame costs the page's pixels, whichever views it shows (the 3D view alone drew no more frames than the
+lab's layout with its plots and log; a window of a quarter the pixels drew several times as many and
+kept up: `tests/bench/bench_viewer_frames.py`). The page cannot shrink that for the browser: eframe
+sizes its canvas by the window's device pixels, not by `devicePixelRatio`, so the layout stays the
+recording's and a smaller window is the user's lever.
+
 The stream is served on the view's own host (127.0.0.1 unless `twinmesh up --view HOST:PORT` names
 another): Rerun's own default would be every interface.
 """
