@@ -29,8 +29,9 @@ layout: once data arrives every batch the viewer draws every frame anew, and a s
 frame costs the page's pixels, whichever views it shows (the 3D view alone drew no more frames than the
 lab's layout with its plots and log; a window of a quarter the pixels drew several times as many and
 kept up: `tests/bench/bench_viewer_frames.py`). The page cannot shrink that for the browser: eframe
-sizes its canvas by the window's device pixels, not by `devicePixelRatio`, so the layout stays the
-recording's and a smaller window is the user's lever.
+sizes its canvas from the device pixels the browser lays out, not from `devicePixelRatio` (a page that
+lowered it still drew every pixel), and a smaller canvas would be a smaller view. So the layout stays
+the recording's, and a smaller window is the user's lever.
 
 The stream is served on the view's own host (127.0.0.1 unless `twinmesh up --view HOST:PORT` names
 another): Rerun's own default would be every interface.
