@@ -252,7 +252,7 @@ def measure(load: Load, seconds: float, every: float) -> dict:
             opened = time.perf_counter()
             first = seconds_until(lambda: lag(view) is not None, 300.0)
             browser = [p for p in psutil.Process().children(recursive=True) if "chrom" in p.name()]
-            cpu0, logger0 = _cpu(browser), _cpu([psutil.Process(proc.pid)])
+            cpu0, logger0 = cpu_seconds(browser), cpu_seconds([psutil.Process(proc.pid)])
             lags: list[tuple[float, float | None]] = []
             ended = threading.Event()  # the logger gone: no sample would mean anything
             threading.Thread(target=lambda: (proc.wait(), ended.set()), daemon=True).start()
@@ -262,7 +262,7 @@ def measure(load: Load, seconds: float, every: float) -> dict:
                 lags.append((time.perf_counter() - opened, lag(view)))
             fps = view.page.evaluate(FPS_SCRIPT)
             window = time.perf_counter() - opened - (first or 0.0)
-            cpu, logger = _cpu(browser) - cpu0, _cpu([psutil.Process(proc.pid)]) - logger0
+            cpu, logger = cpu_seconds(browser) - cpu0, cpu_seconds([psutil.Process(proc.pid)]) - logger0
             problems = view.rerun_problems()
         return {"first": first, "fps": fps, "lags": unwrap(lags), "browser_cpu": cpu / window,
                 "logger_cpu": logger / window, "problems": problems[:3]}
@@ -296,7 +296,8 @@ def unwrap(lags: list[tuple[float, float | None]]) -> list[tuple[float, float | 
 
 
 
-def _cpu(processes) -> float:
+def cpu_seconds(processes) -> float:
+    """User + system CPU of `processes` (psutil), those that ended left out."""
     total = 0.0
     for p in processes:
         try:

@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: labs, re
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_live_view import COLOURS, busy, put_colour, shown  # noqa: E402
+from bench_viewer_capacity import cpu_seconds  # noqa: E402
 from labs import free_port, start_lab, stop_process  # noqa: E402
 from rerun_view import ViewerPage, room_drawn  # noqa: E402
 from waiting import seconds_until  # noqa: E402
@@ -68,17 +69,6 @@ def serve(config: str, endpoint: str, port: int, grpc_port: int) -> None:
     run(MeshSettings(mode="client", connect=(endpoint,)), stop, ("127.0.0.1", port), grpc_port)
 
 
-def _cpu(processes) -> float:
-    total = 0.0
-    for p in processes:
-        try:
-            t = p.cpu_times()
-            total += t.user + t.system
-        except Exception:  # a process that ended
-            pass
-    return total
-
-
 def measure(lab, config: str, tmp: Path, settle: float, changes: int) -> dict:
     import psutil
     from browser import chromium
@@ -100,10 +90,10 @@ def measure(lab, config: str, tmp: Path, settle: float, changes: int) -> dict:
             chrome = [p for p in psutil.Process().children(recursive=True) if "chrom" in p.name()]
             gpu = [p for p in chrome if "--type=gpu-process" in " ".join(p.cmdline())]
             renderer = [p for p in chrome if "--type=renderer" in " ".join(p.cmdline())]
-            cpu0 = (_cpu(renderer), _cpu(gpu), time.perf_counter())
+            cpu0 = (cpu_seconds(renderer), cpu_seconds(gpu), time.perf_counter())
             fps = view.page.evaluate(PAINTS_SCRIPT)
             window = time.perf_counter() - cpu0[2]
-            cpu = ((_cpu(renderer) - cpu0[0]) / window, (_cpu(gpu) - cpu0[1]) / window)
+            cpu = ((cpu_seconds(renderer) - cpu0[0]) / window, (cpu_seconds(gpu) - cpu0[1]) / window)
             shots, delays = [], []
             for k in range(changes):
                 name = ("magenta", "cyan")[k % 2]
