@@ -63,11 +63,13 @@ def test_twinmesh_cache_and_numba_cache_dir_still_win(tmp_path):
     assert where["numba"] == str(tmp_path / "numba")
 
 
-def test_the_same_code_in_another_place_finds_it_compiled_and_edited_code_compiles_afresh(monkeypatch, tmp_path):
-    """Our compiled code is kept by what our compiled modules hold (`numba_locator`): a second install of the
-    same version (another venv, a fresh clone) takes the first one's compile for its own; a copy with a
-    compiled module edited does not (its every process would run stale code)."""
-    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
+def _cores_copied_elsewhere(monkeypatch, tmp_path: Path) -> types.ModuleType:
+    """`cores` and our compiled modules copied to another folder and loaded from there, as a second install
+    has them (numba's settings, which loading it sets, given back after the test)."""
+    from numba.core import config
+
+    monkeypatch.setattr(config, "CACHE_DIR", config.CACHE_DIR)
+    monkeypatch.setattr(config, "CACHE_LOCATOR_CLASSES", config.CACHE_LOCATOR_CLASSES)
     copy_dir = tmp_path / "elsewhere" / "robot"
     copy_dir.mkdir(parents=True)
     for name in ("cores.py", *cores.COMPILED_MODULES):
@@ -75,15 +77,40 @@ def test_the_same_code_in_another_place_finds_it_compiled_and_edited_code_compil
     spec = importlib.util.spec_from_file_location("cores_elsewhere", copy_dir / "cores.py")
     elsewhere = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(elsewhere)
+    return elsewhere
+
+
+def test_the_same_code_in_another_place_finds_it_compiled_and_edited_code_compiles_afresh(monkeypatch, tmp_path):
+    """Our compiled code is kept by what our compiled modules hold (`numba_locator`): a second install of the
+    same version (another venv, a fresh clone) takes the first one's compile for its own; a copy with a
+    compiled module edited does not (its every process would run stale code)."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
+    elsewhere = _cores_copied_elsewhere(monkeypatch, tmp_path)
     monkeypatch.setattr(cores, "_compiling_here", threading.Event())  # not this process's compile, whatever ran
     assert not cores.compiled() and not elsewhere.compiled()
     cores.compiled_stamp().parent.mkdir(parents=True)
     cores.compiled_stamp().touch()  # compiled here
     assert cores.compiled() and elsewhere.compiled(), "the same code elsewhere did not find its compile"
-    kernel = copy_dir / "sphere_kernel.py"
+    kernel = tmp_path / "elsewhere" / "robot" / "sphere_kernel.py"
     kernel.write_text(kernel.read_text() + "\n# edited\n")
     elsewhere.sources_hash.cache_clear()
     assert not elsewhere.compiled(), "an edited copy took the compile of the code it was copied from"
+
+
+def test_with_numbas_own_locators_chosen_a_copy_elsewhere_compiles_its_own(monkeypatch, tmp_path):
+    """A user who sets NUMBA_CACHE_LOCATOR_CLASSES gets numba's own keeping, by folder: the same code
+    elsewhere then has none of the first install's compile, so it must not take its stamp for its own."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
+    monkeypatch.setenv("NUMBA_CACHE_LOCATOR_CLASSES", "UserProvidedCacheLocator")
+    elsewhere = _cores_copied_elsewhere(monkeypatch, tmp_path)
+    monkeypatch.setattr(cores, "_compiling_here", threading.Event())
+    cores.sources_hash.cache_clear()
+    try:
+        cores.compiled_stamp().parent.mkdir(parents=True)
+        cores.compiled_stamp().touch()
+        assert cores.compiled() and not elsewhere.compiled()
+    finally:
+        cores.sources_hash.cache_clear()  # the session's own environment again for the tests after
 
 
 SECOND_INSTALL = """

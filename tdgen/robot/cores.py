@@ -84,12 +84,15 @@ def compiled_stamp() -> Path:
 @functools.cache
 def sources_hash() -> str:
     """What our compiled modules hold, with numba's version, Python's and the machine's: the name of the folder
-    numba keeps their compiled code in (`numba_locator`) and of the stamp that says it is complete."""
+    numba keeps their compiled code in (`numba_locator`) and of the stamp that says it is complete. Where the
+    user chose numba's own locators, which keep compiled code by its folder, the folder counts too."""
     import hashlib
     import platform
     from importlib.metadata import version
 
     h = hashlib.sha256(f"{version('numba')} {sys.version} {platform.machine()}".encode())
+    if os.environ.get("NUMBA_CACHE_LOCATOR_CLASSES") != LOCATORS:  # the user's choice: numba's own, by path
+        h.update(os.path.abspath(Path(__file__).parent).encode())
     for name in COMPILED_MODULES:
         h.update((Path(__file__).parent / name).read_bytes())
     return h.hexdigest()[:16]

@@ -21,6 +21,10 @@ from tdgen.robot import cores
 class ByContentLocator(UserProvidedCacheLocator):
     """numba's `NUMBA_CACHE_DIR` locator, with our compiled modules in one folder per version of their code."""
 
+    def __init__(self, py_func, py_file: str):
+        super().__init__(py_func, py_file)
+        self.source_file = py_file
+
     @classmethod
     def get_suitable_cache_subpath(cls, py_file: str) -> str:
         if cores.is_compiled_module(py_file):
@@ -29,8 +33,8 @@ class ByContentLocator(UserProvidedCacheLocator):
 
     def get_source_stamp(self) -> bytes:
         """The source's contents, not its modification time: a fresh clone's files are new, their code is not."""
-        st = os.stat(self._py_file)
-        return _file_hash(self._py_file, st.st_mtime, st.st_size)
+        st = os.stat(self.source_file)
+        return _file_hash(self.source_file, st.st_mtime, st.st_size)
 
 
 @functools.cache
