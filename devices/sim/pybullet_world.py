@@ -421,9 +421,10 @@ class World:
                     if self._wake.wait(min(left, 0.25)):  # short waits: no timeout ever overflows
                         self._wake.clear()
                         self._run_commands()
-                        if self._resting is None or not self.idle():
+                        moving = not self.idle()
+                        if self._resting is None or moving:
                             until = min(until, next_wall)  # woken, or a motion added: one step at a time again
-                        if self._speed is None and not self.idle():
+                        if self._speed is None and moving:
                             break  # a motion started: full speed from now on
         except BaseException as exc:  # a broken world must not leave callers waiting forever
             log.exception("stepping thread died")
