@@ -110,6 +110,17 @@ class ViewerPage:
         """Hosts other than this machine that the page asked for anything."""
         return {h for h in self.hosts if h not in LOCAL}
 
+    def layout(self) -> tuple[int, str, int]:
+        """How our page laid the viewer out: its scale, the WebGL renderer the browser reports, and the
+        width in CSS pixels the viewer's frame has (the window's width / scale)."""
+        return self.page.evaluate("""() => {
+            const gl = document.createElement("canvas").getContext("webgl2");
+            const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
+            const renderer = gl ? String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER)) : "";
+            return [Number(document.documentElement.dataset.scale), renderer,
+                    document.getElementById("viewer").clientWidth];
+        }""")
+
     def save(self, path: Path) -> None:
         """The page as it is now, to a PNG (what a failing test leaves to look at)."""
         self.page.screenshot(path=str(path), timeout=180_000)

@@ -2,7 +2,8 @@
 
 One lab (`twinmesh up iot-lab` with its live view and `--record`) for the module. The browser test
 opens the view as a person would (headless Chromium, software WebGL), waits until the room is drawn,
-switches a lamp on in a colour nothing else in the room has, and waits for that colour in the page;
+switches a lamp on in a colour nothing else in the room has, and waits for that colour in the page (in a
+browser that draws WebGL in software, as here, our page lays the viewer out at half size, enlarged);
 Rerun says no error or warning about the data on the console meanwhile, and the page asks no host
 but this one for anything. A second page, opened after the lamp went through several colours, shows
 it in its current colour and in no earlier one. The recording test then changes the lamps, adds and removes an obstacle,
@@ -16,9 +17,10 @@ import subprocess
 import numpy as np
 import pytest
 from labs import start_lab
-from rerun_view import colour_share, room_drawn, shared_frames, viewer_page
+from rerun_view import VIEWPORT, colour_share, room_drawn, shared_frames, viewer_page
 from waiting import eventually
 
+from mesh.recorder.web_viewer import SOFTWARE_RENDERERS
 from recordings import RERUN, read_column
 
 pytestmark = [pytest.mark.lab, pytest.mark.slow]
@@ -69,6 +71,9 @@ def test_the_live_view_draws_the_lab_and_a_lamp_in_the_colour_it_is_switched_on_
             eventually(lambda: room_drawn(view.pixels()), timeout=DRAWN_TIMEOUT, interval=5.0,
                        what="the room drawn in the view")
             assert magenta_pixels(view.pixels()) == 0
+            scale, renderer, width = view.layout()  # a software renderer draws a quarter of the pixels
+            assert scale == (2 if any(s in renderer.lower() for s in SOFTWARE_RENDERERS) else 1), renderer
+            assert width == VIEWPORT["width"] // scale
             invoke(lab, "invoke", "light-left", "setColor", json.dumps({"r": 1, "g": 0, "b": 1}))
             invoke(lab, "invoke", "light-left", "switchOn")
             eventually(lambda: magenta_pixels(view.pixels()) >= 20, timeout=SHOWN_TIMEOUT, interval=2.0,

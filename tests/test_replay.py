@@ -133,7 +133,13 @@ def test_the_replay_page_is_served_on_loopback_with_a_policy_that_keeps_it_here(
         policy = page.headers["Content-Security-Policy"]
         body = page.read().decode()
     assert "connect-src 'self' http://*:" in policy and "default-src 'self'" in policy
-    assert "fonts.googleapis.com" not in body  # the page's web-font links are taken out
+    assert 'src = "viewer.html"' in body  # our page, holding Rerun's in a frame
+    viewer = replaying.url.split("?")[0] + "viewer.html"
+    with urllib.request.urlopen(viewer, timeout=60) as page:
+        assert page.headers["Content-Security-Policy"] == policy
+        body = page.read().decode()
+    assert "re_viewer" in body  # Rerun's own page
+    assert "fonts.googleapis.com" not in body  # its web-font links are taken out
     assert replaying.stop() in (0, -2, 130)
 
 

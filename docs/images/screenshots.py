@@ -23,7 +23,8 @@ ARGS = ["--no-sandbox", "--headless", "--disable-gpu", "--disable-background-net
         "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
 
 
-def main(http: str = "http://127.0.0.1:8080/", view: str = "http://127.0.0.1:9090/") -> None:
+def main(http: str = "http://127.0.0.1:8080/", view: str = "http://127.0.0.1:9090/?scale=1") -> None:
+    """`scale=1`: every pixel drawn, as a browser with a GPU shows the view (this one renders in software)."""
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=chromium, args=ARGS)

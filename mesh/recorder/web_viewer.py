@@ -6,9 +6,18 @@ rerun-sdk's own web server on an internal port (the files come with the package:
 kept in memory, with a Content-Security-Policy that lets the page connect to nothing but its own
 origin and the recording's gRPC port: the browser refuses every other request before it leaves.
 The page's links to web fonts (which the policy would refuse anyway) are taken out of it.
+
+The address a browser opens is a page of ours (`FRAME_PAGE`) that holds the viewer's own page in a
+frame. A browser without a GPU draws WebGL in software, and then the number of pixels sets how many
+frames a second the viewer draws, and so how soon a change shows (docs: the benchmarks page). In such
+a browser the frame lays the viewer out at half the window's size and shows it enlarged twice: a
+quarter of the pixels to draw. `scale=N` in the address chooses (1 = every pixel, up to 4); `auto`,
+the default, is 2 where WebGL reports a software renderer and 1 elsewhere. The browser maps clicks
+and keys through the enlargement into the frame, so the viewer works as it does alone.
 """
 from __future__ import annotations
 
+import json
 import re
 import socket
 import threading
@@ -21,6 +30,45 @@ POLICY = ("default-src 'self'; script-src 'self' 'unsafe-inline' 'wasm-unsafe-ev
           "worker-src 'self' blob:; connect-src 'self' http://*:{grpc} https://*:{grpc}")
 _KEPT_HEADERS = ("Content-Type", "Content-Encoding")
 _REMOTE_LINK = re.compile(rb"<link\b[^>]*?https?://[^>]*>", re.S)
+
+
+VIEWER_PAGE = "/viewer.html"  # Rerun's own page (rerun-sdk's `/`), in the frame of ours
+SOFTWARE_RENDERERS = ("swiftshader", "llvmpipe", "softpipe", "software", "basic render")
+FRAME_PAGE = """<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>twinmesh 3D view</title>
+<style>html,body{margin:0;width:100%;height:100%;overflow:hidden;background:#0d1011}
+iframe{position:absolute;left:0;top:0;border:0;transform-origin:0 0}</style></head>
+<body><iframe id="viewer" title="Rerun viewer" allow="fullscreen; clipboard-read; clipboard-write"></iframe>
+<script>
+(function () {
+  var asked = new URLSearchParams(location.search);
+  var scale = asked.get("scale") || "auto";
+  asked.delete("scale");
+  function software() {
+    try {
+      var gl = document.createElement("canvas").getContext("webgl2") ||
+               document.createElement("canvas").getContext("webgl");
+      if (!gl) return false;
+      var info = gl.getExtension("WEBGL_debug_renderer_info");
+      var name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER)).toLowerCase();
+      return SOFTWARE.some(function (s) { return name.indexOf(s) >= 0; });
+    } catch (e) { return false; }
+  }
+  var k = scale === "auto" ? (software() ? 2 : 1) : Math.min(4, Math.max(1, Number(scale) || 1));
+  var frame = document.getElementById("viewer");
+  function fit() {
+    frame.style.width = (innerWidth / k) + "px";
+    frame.style.height = (innerHeight / k) + "px";
+    frame.style.transform = k === 1 ? "" : "scale(" + k + ")";
+  }
+  addEventListener("resize", fit);
+  fit();
+  document.documentElement.dataset.scale = String(k);
+  frame.src = "VIEWER" + (asked.toString() ? "?" + asked.toString() : "");
+  frame.addEventListener("load", function () { frame.focus(); });
+})();
+</script></body></html>
+""".replace("SOFTWARE", json.dumps(SOFTWARE_RENDERERS)).replace("VIEWER", VIEWER_PAGE.lstrip("/"))
 
 
 WILDCARDS = ("0.0.0.0", "::", "")  # every interface: a browser elsewhere reaches it by this machine's name
@@ -73,7 +121,12 @@ class ViewerServer:
         self._thread.start()
 
     def file(self, path: str) -> tuple[int, list[tuple[str, str]], bytes]:
-        """A file of the viewer (fetched once from rerun-sdk's server, then from memory)."""
+        """Our page at `/`; a file of the viewer (fetched once from rerun-sdk's server, then from memory),
+        its own page at `VIEWER_PAGE`."""
+        if path in ("/", "/index.html"):
+            return 200, [("Content-Type", "text/html; charset=utf-8")], FRAME_PAGE.encode()
+        if path == VIEWER_PAGE:
+            path = "/"
         with self._lock:
             kept = self._files.get(path)
         if kept is not None:

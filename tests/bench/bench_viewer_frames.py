@@ -1,11 +1,13 @@
 """What sets the frames a second the real lab's live page draws: one factor at a time.
 
-    python tests/bench/bench_viewer_frames.py [--configs lab small 3d nolog noplots] [--busy] [--settle 45]
+    python tests/bench/bench_viewer_frames.py [--configs lab full alone small 3d nolog noplots] [--busy] [--settle 45]
 
 Starts `twinmesh up iot-lab --speed max` (its own view off) and, per configuration, a live view process
 of its own (`mesh.recorder.view.run`, the blueprint's plots or text log left out as the configuration
-says) and a page on it in headless Chromium (software WebGL). `--busy` runs the cube workflow over and
-over meanwhile. Per configuration: the seconds until the room is drawn; after `--settle` s the page's
+says) and a page on it in headless Chromium (software WebGL): `lab` the address as a user opens it
+(our page, which chooses its scale: mesh.recorder.web_viewer), `full` the same at scale 1, `alone`
+Rerun's page without ours. `--busy` runs the cube workflow over and over meanwhile. Per configuration:
+the seconds until the room is drawn; after `--settle` s the page's
 frames a second (the animation frames eframe asks for, over 5 s: Rerun's web viewer takes in data for about
 10 ms a frame it draws, so frames a second bound what it can take in), the CPU of the browser's
 renderer and GPU processes over that window; then a lamp's colour written over HTTP to the first
@@ -38,13 +40,15 @@ from waiting import seconds_until  # noqa: E402
 
 from recordings import wait_for_line  # noqa: E402
 
-# name -> (viewport, what the blueprint shows besides the 3D view)
+# name -> (viewport, what the blueprint shows besides the 3D view, the page's `scale`: see web_viewer)
 CONFIGS = {
-    "lab": ("1280x800", {"plots": True, "log": True}),
-    "small": ("640x400", {"plots": True, "log": True}),
-    "3d": ("1280x800", {"plots": False, "log": False}),
-    "nolog": ("1280x800", {"plots": True, "log": False}),
-    "noplots": ("1280x800", {"plots": False, "log": True}),
+    "lab": ("1280x800", {"plots": True, "log": True}, "auto"),
+    "full": ("1280x800", {"plots": True, "log": True}, "1"),
+    "alone": ("1280x800", {"plots": True, "log": True}, None),  # Rerun's page opened alone, no frame of ours
+    "small": ("640x400", {"plots": True, "log": True}, "1"),
+    "3d": ("1280x800", {"plots": False, "log": False}, "1"),
+    "nolog": ("1280x800", {"plots": True, "log": False}, "1"),
+    "noplots": ("1280x800", {"plots": False, "log": True}, "1"),
 }
 SHOWN_LIMIT = 120.0
 # the viewer's own frames: eframe asks for an animation frame when it must paint, none when nothing changed
@@ -53,6 +57,13 @@ COUNT_PAINTS = """window.__paints = 0; const raf = window.requestAnimationFrame.
 window.requestAnimationFrame = cb => raf(t => { window.__paints++; cb(t); });"""
 PAINTS_SCRIPT = """() => new Promise(done => { const n0 = window.__paints, t0 = performance.now();
   setTimeout(() => done((window.__paints - n0) / ((performance.now() - t0) / 1000)), 5000); })"""
+
+
+def viewer_frame(page):
+    """The frame Rerun's viewer runs in (our page at `/` holds it: mesh.recorder.web_viewer)."""
+    from mesh.recorder.web_viewer import VIEWER_PAGE
+
+    return next((f for f in page.frames if VIEWER_PAGE in f.url), page.main_frame)
 
 
 def serve(config: str, endpoint: str, port: int, grpc_port: int) -> None:
@@ -73,12 +84,16 @@ def measure(lab, config: str, tmp: Path, settle: float, changes: int) -> dict:
     import psutil
     from browser import chromium
 
+    from mesh.recorder.web_viewer import VIEWER_PAGE
+
     log = tmp / f"view-{config}.log"
     port, grpc = free_port(), free_port()
     proc = subprocess.Popen([sys.executable, __file__, "--serve", config, lab.endpoint, str(port), str(grpc)],
                             stdout=open(log, "wb"), stderr=subprocess.STDOUT, start_new_session=True)
     try:
         url = re.search(r"3D view at (http://\S+)", wait_for_line(log, "3D view at", proc, timeout=300)).group(1)
+        scale = CONFIGS[config][2]
+        url = url.replace("/?", VIEWER_PAGE + "?") if scale is None else url + f"&scale={scale}"
         w, h = (int(x) for x in CONFIGS[config][0].split("x"))
         with chromium() as app:
             page = app.new_page(viewport={"width": w, "height": h})  # type: ignore[attr-defined]
@@ -91,7 +106,7 @@ def measure(lab, config: str, tmp: Path, settle: float, changes: int) -> dict:
             gpu = [p for p in chrome if "--type=gpu-process" in " ".join(p.cmdline())]
             renderer = [p for p in chrome if "--type=renderer" in " ".join(p.cmdline())]
             cpu0 = (cpu_seconds(renderer), cpu_seconds(gpu), time.perf_counter())
-            fps = view.page.evaluate(PAINTS_SCRIPT)
+            fps = viewer_frame(view.page).evaluate(PAINTS_SCRIPT)
             window = time.perf_counter() - cpu0[2]
             cpu = ((cpu_seconds(renderer) - cpu0[0]) / window, (cpu_seconds(gpu) - cpu0[1]) / window)
             shots, delays = [], []
@@ -109,12 +124,13 @@ def measure(lab, config: str, tmp: Path, settle: float, changes: int) -> dict:
                 delays.append(seconds_until(seen, SHOWN_LIMIT))
                 if delays[-1] is None:
                     break
-            fps_end = view.page.evaluate(PAINTS_SCRIPT)
+            fps_end = viewer_frame(view.page).evaluate(PAINTS_SCRIPT)
             load = os.getloadavg()[0]
             problems = view.rerun_problems()
+            scale = view.page.evaluate("() => document.documentElement.dataset.scale || '1'")
         return {"drawn": drawn, "fps": fps, "fps_end": fps_end, "renderer": cpu[0], "gpu": cpu[1],
                 "delays": delays, "shot": sorted(shots)[len(shots) // 2] if shots else None,
-                "problems": problems[:2], "load": load}
+                "problems": problems[:2], "load": load, "scale": scale}
     finally:
         stop_process(proc)
 
@@ -137,7 +153,8 @@ def main(configs: list[str], busy_lab: bool, settle: float, changes: int) -> Non
         for config in configs:
             r = measure(lab, config, tmp, settle, changes)
             delays = ", ".join(_s(d) if d is not None else f">{SHOWN_LIMIT:.0f}" for d in r["delays"])
-            print(f"| {config}{' (busy lab)' if busy_lab else ''} | {CONFIGS[config][0]} | {_s(r['drawn'])} | "
+            print(f"| {config}{' (busy lab)' if busy_lab else ''} | {CONFIGS[config][0]}, scale {r['scale']} | "
+                  f"{_s(r['drawn'])} | "
                   f"{r['fps']:.1f} / {r['fps_end']:.1f} | {r['renderer']:.2f} / {r['gpu']:.2f} | {delays} | "
                   f"{_s(r['shot'])} | {len(r['problems'])} | {r['load']:.1f} |", flush=True)
     finally:
