@@ -1,5 +1,6 @@
 """The view's page of our own (`mesh.recorder.web_viewer`): Rerun's viewer in a frame, enlarged where WebGL
-renders in software, and a pointer that still lands where the viewer drew what it points at.
+renders in software (within `SOFTWARE_PIXELS` whatever the window), and a pointer that still lands where the
+viewer drew what it points at.
 
 A `ViewerServer` with no stream behind it is enough: what is tested is how our page lays out Rerun's page and
 carries input into it, in a real headless Chromium (software WebGL here).
@@ -55,14 +56,15 @@ def test_a_click_on_the_enlarged_page_lands_where_the_viewer_drew_it(server, bro
 
 
 def test_scale_1_gives_the_viewer_every_pixel_and_auto_follows_the_renderer(server, browser):
+    from rerun_view import ViewerPage
+
+    from mesh.recorder.web_viewer import SOFTWARE_RENDERERS
+
     page, frame = opened(browser, f"{server}&scale=1")
     try:
         assert frame.evaluate("() => [innerWidth, innerHeight]") == [VIEWPORT["width"], VIEWPORT["height"]]
     finally:
         page.close()
-    from rerun_view import ViewerPage
-
-    from mesh.recorder.web_viewer import SOFTWARE_RENDERERS
 
     page = browser.new_page(viewport=VIEWPORT)
     try:
@@ -71,3 +73,22 @@ def test_scale_1_gives_the_viewer_every_pixel_and_auto_follows_the_renderer(serv
         assert width == VIEWPORT["width"] // scale
     finally:
         page.close()
+
+
+def test_auto_keeps_a_software_renderer_within_its_pixels_in_any_window(server, browser):
+    from rerun_view import ViewerPage
+
+    from mesh.recorder.web_viewer import SOFTWARE_PIXELS, SOFTWARE_RENDERERS
+
+    for width, height in ((1920, 1080), (800, 500)):
+        page = browser.new_page(viewport={"width": width, "height": height})
+        try:
+            scale, renderer, _ = ViewerPage(page, server).layout()
+            if not any(s in renderer.lower() for s in SOFTWARE_RENDERERS):
+                pytest.skip(f"this browser renders WebGL on a GPU ({renderer}): auto draws every pixel there")
+            inner = page.evaluate("() => [document.getElementById('viewer').clientWidth, "
+                                  "document.getElementById('viewer').clientHeight]")
+            assert inner[0] * inner[1] <= SOFTWARE_PIXELS * 1.01  # rounding to whole CSS pixels
+            assert scale == pytest.approx(max(1.0, (width * height / SOFTWARE_PIXELS) ** 0.5), abs=0.01)
+        finally:
+            page.close()

@@ -10,10 +10,11 @@ The page's links to web fonts (which the policy would refuse anyway) are taken o
 The address a browser opens is a page of ours (`FRAME_PAGE`) that holds the viewer's own page in a
 frame. A browser without a GPU draws WebGL in software, and then the number of pixels sets how many
 frames a second the viewer draws, and so how soon a change shows (docs: the benchmarks page). In such
-a browser the frame lays the viewer out at half the window's size and shows it enlarged twice: a
-quarter of the pixels to draw. `scale=N` in the address chooses (1 = every pixel, up to 4); `auto`,
-the default, is 2 where WebGL reports a software renderer and 1 elsewhere. The browser maps clicks
-and keys through the enlargement into the frame, so the viewer works as it does alone.
+a browser the frame lays the viewer out smaller and shows it enlarged, so that it draws no more than
+`SOFTWARE_PIXELS` (a 1280x800 window: half its size, enlarged twice). `scale=N` in the address
+chooses (1 = every pixel, up to 4); `auto`, the default, does this where WebGL reports a software
+renderer and draws every pixel elsewhere. The browser maps clicks and keys through the enlargement
+into the frame, so the viewer works as it does alone.
 """
 from __future__ import annotations
 
@@ -33,8 +34,11 @@ _REMOTE_LINK = re.compile(rb"<link\b[^>]*?https?://[^>]*>", re.S)
 
 
 VIEWER_PAGE = "/viewer.html"  # Rerun's own page (rerun-sdk's `/`), in the frame of ours
+# A software renderer's frames a second follow the pixels it draws: 640x400 kept up with a busy lab where
+# 1280x800 fell minutes behind (docs: the benchmarks page). `auto` scales the viewer so that it draws no more.
+SOFTWARE_PIXELS = 640 * 400
 SOFTWARE_RENDERERS = ("swiftshader", "llvmpipe", "softpipe", "software", "basic render")
-FRAME_PAGE = """<!doctype html>
+_FRAME_TEMPLATE = """<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>twinmesh 3D view</title>
 <style>html,body{margin:0;width:100%;height:100%;overflow:hidden;background:#0d1011}
 iframe{position:absolute;left:0;top:0;border:0;transform-origin:0 0}</style></head>
@@ -54,21 +58,36 @@ iframe{position:absolute;left:0;top:0;border:0;transform-origin:0 0}</style></he
       return SOFTWARE.some(function (s) { return name.indexOf(s) >= 0; });
     } catch (e) { return false; }
   }
-  var k = scale === "auto" ? (software() ? 2 : 1) : Math.min(4, Math.max(1, Number(scale) || 1));
+  var soft = scale === "auto" && software();
+  var k = 1;
   var frame = document.getElementById("viewer");
   function fit() {
+    // auto: a software renderer draws at most PIXELS pixels (a 1280x800 window: half its size)
+    k = scale !== "auto" ? Math.min(4, Math.max(1, Number(scale) || 1))
+      : soft ? Math.min(4, Math.max(1, Math.sqrt(innerWidth * innerHeight / PIXELS))) : 1;
     frame.style.width = (innerWidth / k) + "px";
     frame.style.height = (innerHeight / k) + "px";
     frame.style.transform = k === 1 ? "" : "scale(" + k + ")";
+    document.documentElement.dataset.scale = String(Math.round(k * 100) / 100);
   }
   addEventListener("resize", fit);
   fit();
-  document.documentElement.dataset.scale = String(k);
   frame.src = "VIEWER" + (asked.toString() ? "?" + asked.toString() : "");
   frame.addEventListener("load", function () { frame.focus(); });
 })();
 </script></body></html>
-""".replace("SOFTWARE", json.dumps(SOFTWARE_RENDERERS)).replace("VIEWER", VIEWER_PAGE.lstrip("/"))
+"""
+
+
+def _frame_page() -> str:
+    page = _FRAME_TEMPLATE
+    for name, value in (("SOFTWARE", json.dumps(SOFTWARE_RENDERERS)), ("PIXELS", str(SOFTWARE_PIXELS)),
+                        ("VIEWER", VIEWER_PAGE.lstrip("/"))):
+        page = page.replace(name, value)
+    return page
+
+
+FRAME_PAGE = _frame_page()  # what a browser opens at `/`
 
 
 WILDCARDS = ("0.0.0.0", "::", "")  # every interface: a browser elsewhere reaches it by this machine's name
