@@ -1,6 +1,6 @@
 """What sets the frames a second the real lab's live page draws: one factor at a time.
 
-    python tests/bench/bench_viewer_frames.py [--configs lab full alone small 3d nolog noplots] [--busy] [--settle 45]
+    python tests/bench/bench_viewer_frames.py [--configs lab full alone lab-nolog small 3d nolog noplots] [--busy] [--settle 45]
 
 Starts `twinmesh up iot-lab --speed max` (its own view off) and, per configuration, a live view process
 of its own (`mesh.recorder.view.run`, the blueprint's plots or text log left out as the configuration
@@ -45,6 +45,7 @@ CONFIGS = {
     "lab": ("1280x800", {"plots": True, "log": True}, "auto"),
     "full": ("1280x800", {"plots": True, "log": True}, "1"),
     "alone": ("1280x800", {"plots": True, "log": True}, None),  # Rerun's page opened alone, no frame of ours
+    "lab-nolog": ("1280x800", {"plots": True, "log": False}, "auto"),
     "small": ("640x400", {"plots": True, "log": True}, "1"),
     "3d": ("1280x800", {"plots": False, "log": False}, "1"),
     "nolog": ("1280x800", {"plots": True, "log": False}, "1"),
