@@ -156,6 +156,13 @@ def viewer_page(url: str) -> Iterator[ViewerPage]:
             page.close()
 
 
+def in_software(renderer: str) -> bool:
+    """Whether a WebGL renderer's name (`ViewerPage.layout`) is one our page counts as software."""
+    from mesh.recorder.web_viewer import SOFTWARE_RENDERERS
+
+    return any(s in renderer.lower() for s in SOFTWARE_RENDERERS)
+
+
 def room_drawn(pixels: np.ndarray) -> bool:
     """The 3D view (the left three fifths of the page) shows a scene: light walls and darker floor and
     tables in many shades, not an empty panel nor the dark loading screen."""

@@ -17,10 +17,9 @@ import subprocess
 import numpy as np
 import pytest
 from labs import start_lab
-from rerun_view import VIEWPORT, colour_share, room_drawn, shared_frames, viewer_page
+from rerun_view import VIEWPORT, colour_share, in_software, room_drawn, shared_frames, viewer_page
 from waiting import eventually
 
-from mesh.recorder.web_viewer import SOFTWARE_RENDERERS
 from recordings import RERUN, read_column
 
 pytestmark = [pytest.mark.lab, pytest.mark.slow]
@@ -72,7 +71,7 @@ def test_the_live_view_draws_the_lab_and_a_lamp_in_the_colour_it_is_switched_on_
                        what="the room drawn in the view")
             assert magenta_pixels(view.pixels()) == 0
             scale, renderer, width = view.layout()  # a software renderer draws a quarter of the pixels
-            assert scale == (2 if any(s in renderer.lower() for s in SOFTWARE_RENDERERS) else 1), renderer
+            assert scale == (2 if in_software(renderer) else 1), renderer
             assert width == VIEWPORT["width"] // scale
             invoke(lab, "invoke", "light-left", "setColor", json.dumps({"r": 1, "g": 0, "b": 1}))
             invoke(lab, "invoke", "light-left", "switchOn")

@@ -6,7 +6,7 @@ A `ViewerServer` with no stream behind it is enough: what is tested is how our p
 carries input into it, in a real headless Chromium (software WebGL here).
 """
 import pytest
-from rerun_view import VIEWPORT
+from rerun_view import VIEWPORT, ViewerPage, in_software
 
 pytestmark = pytest.mark.browser
 
@@ -56,10 +56,6 @@ def test_a_click_on_the_enlarged_page_lands_where_the_viewer_drew_it(server, bro
 
 
 def test_scale_1_gives_the_viewer_every_pixel_and_auto_follows_the_renderer(server, browser):
-    from rerun_view import ViewerPage
-
-    from mesh.recorder.web_viewer import SOFTWARE_RENDERERS
-
     page, frame = opened(browser, f"{server}&scale=1")
     try:
         assert frame.evaluate("() => [innerWidth, innerHeight]") == [VIEWPORT["width"], VIEWPORT["height"]]
@@ -69,22 +65,20 @@ def test_scale_1_gives_the_viewer_every_pixel_and_auto_follows_the_renderer(serv
     page = browser.new_page(viewport=VIEWPORT)
     try:
         scale, renderer, width = ViewerPage(page, server).layout()
-        assert scale == (2 if any(s in renderer.lower() for s in SOFTWARE_RENDERERS) else 1), renderer
+        assert scale == (2 if in_software(renderer) else 1), renderer
         assert width == VIEWPORT["width"] // scale
     finally:
         page.close()
 
 
 def test_auto_keeps_a_software_renderer_within_its_pixels_in_any_window(server, browser):
-    from rerun_view import ViewerPage
-
-    from mesh.recorder.web_viewer import SOFTWARE_PIXELS, SOFTWARE_RENDERERS
+    from mesh.recorder.web_viewer import SOFTWARE_PIXELS
 
     for width, height in ((1920, 1080), (800, 500)):
         page = browser.new_page(viewport={"width": width, "height": height})
         try:
             scale, renderer, _ = ViewerPage(page, server).layout()
-            if not any(s in renderer.lower() for s in SOFTWARE_RENDERERS):
+            if not in_software(renderer):
                 pytest.skip(f"this browser renders WebGL on a GPU ({renderer}): auto draws every pixel there")
             inner = page.evaluate("() => [document.getElementById('viewer').clientWidth, "
                                   "document.getElementById('viewer').clientHeight]")

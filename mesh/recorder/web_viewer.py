@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import re
 import socket
+import string
 import threading
 import urllib.request
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -38,7 +39,7 @@ VIEWER_PAGE = "/viewer.html"  # Rerun's own page (rerun-sdk's `/`), in the frame
 # 1280x800 fell minutes behind (docs: the benchmarks page). `auto` scales the viewer so that it draws no more.
 SOFTWARE_PIXELS = 640 * 400
 SOFTWARE_RENDERERS = ("swiftshader", "llvmpipe", "softpipe", "software", "basic render")
-_FRAME_TEMPLATE = """<!doctype html>
+_FRAME_TEMPLATE = string.Template("""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>twinmesh 3D view</title>
 <style>html,body{margin:0;width:100%;height:100%;overflow:hidden;background:#0d1011}
 iframe{position:absolute;left:0;top:0;border:0;transform-origin:0 0}</style></head>
@@ -55,16 +56,16 @@ iframe{position:absolute;left:0;top:0;border:0;transform-origin:0 0}</style></he
       if (!gl) return false;
       var info = gl.getExtension("WEBGL_debug_renderer_info");
       var name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER)).toLowerCase();
-      return SOFTWARE.some(function (s) { return name.indexOf(s) >= 0; });
+      return $software.some(function (s) { return name.indexOf(s) >= 0; });
     } catch (e) { return false; }
   }
   var soft = scale === "auto" && software();
   var k = 1;
   var frame = document.getElementById("viewer");
   function fit() {
-    // auto: a software renderer draws at most PIXELS pixels (a 1280x800 window: half its size)
+    // auto: a software renderer draws at most $pixels pixels (a 1280x800 window: half its size)
     k = scale !== "auto" ? Math.min(4, Math.max(1, Number(scale) || 1))
-      : soft ? Math.min(4, Math.max(1, Math.sqrt(innerWidth * innerHeight / PIXELS))) : 1;
+      : soft ? Math.min(4, Math.max(1, Math.sqrt(innerWidth * innerHeight / $pixels))) : 1;
     frame.style.width = (innerWidth / k) + "px";
     frame.style.height = (innerHeight / k) + "px";
     frame.style.transform = k === 1 ? "" : "scale(" + k + ")";
@@ -72,22 +73,13 @@ iframe{position:absolute;left:0;top:0;border:0;transform-origin:0 0}</style></he
   }
   addEventListener("resize", fit);
   fit();
-  frame.src = "VIEWER" + (asked.toString() ? "?" + asked.toString() : "");
+  frame.src = "$viewer" + (asked.toString() ? "?" + asked.toString() : "");
   frame.addEventListener("load", function () { frame.focus(); });
 })();
 </script></body></html>
-"""
-
-
-def _frame_page() -> str:
-    page = _FRAME_TEMPLATE
-    for name, value in (("SOFTWARE", json.dumps(SOFTWARE_RENDERERS)), ("PIXELS", str(SOFTWARE_PIXELS)),
-                        ("VIEWER", VIEWER_PAGE.lstrip("/"))):
-        page = page.replace(name, value)
-    return page
-
-
-FRAME_PAGE = _frame_page()  # what a browser opens at `/`
+""")
+FRAME_PAGE = _FRAME_TEMPLATE.substitute(  # what a browser opens at `/`
+    software=json.dumps(SOFTWARE_RENDERERS), pixels=SOFTWARE_PIXELS, viewer=VIEWER_PAGE.lstrip("/"))
 
 
 WILDCARDS = ("0.0.0.0", "::", "")  # every interface: a browser elsewhere reaches it by this machine's name

@@ -1,17 +1,18 @@
 """What sets the frames a second the real lab's live page draws: one factor at a time.
 
-    python tests/bench/bench_viewer_frames.py [--configs lab full alone lab-nolog small 3d nolog noplots] [--busy] [--settle 45]
+    python tests/bench/bench_viewer_frames.py [--configs lab full alone lab-nolog small 3d nolog noplots]
+                                              [--busy] [--settle 45]
 
 Starts `twinmesh up iot-lab --speed max` (its own view off) and, per configuration, a live view process
 of its own (`mesh.recorder.view.run`, the blueprint's plots or text log left out as the configuration
 says) and a page on it in headless Chromium (software WebGL): `lab` the address as a user opens it
 (our page, which chooses its scale: mesh.recorder.web_viewer), `full` the same at scale 1, `alone`
 Rerun's page without ours. `--busy` runs the cube workflow over and over meanwhile. Per configuration:
-the seconds until the room is drawn; after `--settle` s the page's
-frames a second (the animation frames eframe asks for, over 5 s: Rerun's web viewer takes in data for about
-10 ms a frame it draws, so frames a second bound what it can take in), the CPU of the browser's
-renderer and GPU processes over that window; then a lamp's colour written over HTTP to the first
-screenshot showing it (the page's lag behind the lab). Figures on a shared 2-core machine are noisy.
+the seconds until the room is drawn; after `--settle` s the page's frames a second (the animation frames
+eframe asks for, over 5 s: Rerun's web viewer takes in data for about 10 ms a frame it draws, so frames a
+second bound what it can take in), the CPU of the browser's renderer and GPU processes over that window;
+then a lamp's colour written over HTTP to the first screenshot showing it (the page's lag behind the lab).
+Figures on a shared 2-core machine are noisy.
 `--serve CONFIG ENDPOINT PORT GRPC_PORT` is this script's own view process.
 """
 from __future__ import annotations
